@@ -1,0 +1,158 @@
+// Physically grounded scene simulator (SPEC §4), ROS-free and deterministic.
+//
+// Contract: render(t) gives a bgr8 frame of the rock as seen by the study's
+// camera at time t (seconds), plus the ground truth for that frame: the hit
+// point of every projector beam in the camera optical frame at t (NaN where
+// the beam misses the rock or the hit point is hidden from the camera), its
+// (distorted) pixel projection, and the true camera motion since t = 0 as
+// p_cur = delta * p_ref (the PoseDelta convention). The camera and the
+// projector form one rigid rig; the rock is fixed in the world. The same
+// config (seed included) gives byte-identical frames.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "structured_light_stabilizer/camera_model.h"
+#include "structured_light_stabilizer/projector_calibration.h"
+
+namespace structured_light_stabilizer
+{
+
+// Motion of the rig relative to the rock, a deterministic function of time.
+struct RigMotionConfig
+{
+  double jitter_translation_m = 0.0;   // wind jitter amplitude, per axis
+  double jitter_rotation_rad = 0.0;    // wind jitter amplitude, per axis
+  double jitter_frequency_hz = 0.7;    // base frequency; axes use incommensurate multiples
+  Eigen::Vector3d drift_velocity_mps = Eigen::Vector3d::Zero();        // slow drift, camera frame at t=0
+  Eigen::Vector3d drift_angular_velocity_radps = Eigen::Vector3d::Zero();
+  double step_period_s = 0.0;          // 0 = no steps; else a step every period
+  Eigen::Vector3d step_translation_m = Eigen::Vector3d::Zero();
+  // When > 0, the motion is periodic with this period and returns exactly to
+  // the reference pose at every multiple of it (used by the return-to-identity test).
+  double return_period_s = 0.0;
+};
+
+struct RockConfig
+{
+  double distance_m = 1.5;        // distance of the rock's mean plane from the camera at t=0
+  double width_m = 2.0;           // extent of the target (<= 2 x 2 m)
+  double height_m = 2.0;
+  double relief_m = 0.15;         // peak-to-peak relief of the height field (0 = flat board)
+  double albedo_min = 0.05;       // reddish textured albedo range (study §1.1.3)
+  double albedo_max = 0.45;
+  double texture_scale_m = 0.02;  // size of the finest albedo features
+  double tilt_x_rad = 0.0;        // orientation of the mean plane (0 = facing the camera)
+  double tilt_y_rad = 0.0;
+  uint32_t seed = 1;
+};
+
+struct ProjectorConfig
+{
+  int rows = 10;
+  int cols = 10;
+  Eigen::Vector3d origin_m = Eigen::Vector3d(0.25, 0.0, 0.0);  // baseline from the camera centre
+  double pitch_x_rad = 0.035;
+  double pitch_y_rad = 0.035;
+  double roll_rad = 0.087;         // in-plane rotation of the grid (5 deg by default)
+  double converge_distance_m = 1.5;  // the central beam crosses the optical axis here
+  double wavelength_nm = 520.0;
+  double dot_diameter_m = 0.004;     // physical size of a dot on the rock at 1.5 m
+};
+
+struct SensorConfig
+{
+  CameraModel camera = CameraModel::studyDesign();
+  double pixel_size_m = 12e-6;
+  double focal_length_m = 12.14e-3;
+  double focus_distance_m = 1.0;
+  double aperture_diameter_m = 1.9e-3;
+  double read_noise_dn = 1.0;      // std dev in 8-bit counts (0 = off)
+  bool shot_noise = true;
+  double full_well_dn_per_electron = 0.01;  // gain: DN per photo-electron
+};
+
+struct LightingConfig
+{
+  // 0 = night, 1 = the study's brightest case (F50 = 341 W/m^2, optimal BRDF).
+  double sun_level = 0.3;
+  // Ratio of a dot's peak radiance to the sunlit radiance of the same
+  // surface at sun_level = 1; from the study's radiometry (scene analysis).
+  double dot_to_sun_ratio = 4.0;
+  double exposure = 1.0;  // global scale applied before quantisation
+};
+
+struct ClutterConfig
+{
+  int green_specks = 0;        // small green specks (1-3 px)
+  int olive_minerals = 0;      // olive/green-brown patches (should not be detected)
+  int green_blobs = 0;         // dot-sized green blobs on the rock (spurious dots)
+};
+
+struct SimulatorConfig
+{
+  SensorConfig sensor;
+  RockConfig rock;
+  ProjectorConfig projector;
+  LightingConfig lighting;
+  RigMotionConfig motion;
+  ClutterConfig clutter;
+  uint32_t noise_seed = 42;
+
+  // Empty when usable, otherwise why not.
+  std::string validate() const;
+};
+
+struct SimFrame
+{
+  double t = 0.0;
+  cv::Mat image;                          // CV_8UC3, bgr8
+  std::vector<Eigen::Vector3d> points;    // per beam, camera frame at t; NaN if not visible
+  std::vector<cv::Point2d> pixels;        // per beam, distorted pixel of the hit point; NaN if not visible
+  std::vector<double> blur_sigma_px;      // per beam, Gaussian sigma of the rendered dot
+  std::vector<uint8_t> visible;           // per beam, 1 when the dot is in view and unoccluded
+  Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();  // p_cur = delta * p_ref, ref = t=0
+};
+
+class Simulator
+{
+public:
+  // Throws std::invalid_argument with the reason when the config is invalid.
+  explicit Simulator(const SimulatorConfig& config);
+
+  SimFrame render(double t) const;
+
+  const SimulatorConfig& config() const { return config_; }
+  const CameraModel& camera() const { return config_.sensor.camera; }
+  // The exact projector calibration in the camera frame (rig-fixed, constant).
+  const ProjectorCalibration& projector() const { return projector_; }
+  // True camera motion since t = 0 (p_cur = delta * p_ref).
+  Eigen::Isometry3d motion(double t) const;
+  // Pose of the camera in the rock (world) frame at time t.
+  Eigen::Isometry3d cameraPose(double t) const;
+
+  // Ray-casts a ray given in the camera frame at time t onto the rock.
+  // Returns false when it misses. The hit point is in the camera frame at t.
+  bool intersect(double t, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
+                 Eigen::Vector3d* hit) const;
+  // Signed distance along the rock normal of a world point from the surface (0 = on it).
+  double surfaceOffset(const Eigen::Vector3d& p_world) const;
+
+  // Diameter of confusion (m, on the sensor) of a point at distance r (study §2.1.1.4).
+  double diameterOfConfusion(double distance_m) const;
+
+private:
+  SimulatorConfig config_;
+  ProjectorCalibration projector_;
+  struct Impl;
+  std::shared_ptr<const Impl> impl_;
+};
+
+}  // namespace structured_light_stabilizer
