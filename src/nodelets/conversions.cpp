@@ -1,0 +1,209 @@
+#include "structured_light_stabilizer/conversions.h"
+
+#include <cmath>
+#include <limits>
+
+#include <sensor_msgs/point_cloud2_iterator.h>
+
+namespace structured_light_stabilizer
+{
+
+bool cameraModelFromInfo(const sensor_msgs::CameraInfo& info, CameraModel* model, std::string* error)
+{
+  CameraModel m;
+  m.width = static_cast<int>(info.width);
+  m.height = static_cast<int>(info.height);
+  m.fx = info.K[0];
+  m.fy = info.K[4];
+  m.cx = info.K[2];
+  m.cy = info.K[5];
+  if (!CameraModel::parseDistortionModel(info.distortion_model, &m.distortion))
+  {
+    *error = "unsupported distortion_model '" + info.distortion_model + "' (plumb_bob or equidistant)";
+    return false;
+  }
+  m.D = info.D;
+  if (m.distortion == DistortionModel::kNone && !m.D.empty())
+  {
+    bool all_zero = true;
+    for (double d : m.D)
+      all_zero = all_zero && d == 0.0;
+    if (!all_zero)
+    {
+      *error = "camera_info has distortion coefficients but no distortion_model";
+      return false;
+    }
+  }
+  if (info.binning_x > 1 || info.binning_y > 1)
+  {
+    *error = "camera_info binning " + std::to_string(info.binning_x) + "x" + std::to_string(info.binning_y) +
+             " is not supported (publish full-resolution images)";
+    return false;
+  }
+  if (info.roi.width != 0 || info.roi.height != 0 || info.roi.x_offset != 0 || info.roi.y_offset != 0)
+  {
+    *error = "camera_info ROI is not supported (publish full-frame images)";
+    return false;
+  }
+  const std::string why = m.validate();
+  if (!why.empty())
+  {
+    *error = "camera_info unusable: " + why;
+    return false;
+  }
+  *model = m;
+  return true;
+}
+
+sensor_msgs::CameraInfo cameraInfoFromModel(const CameraModel& model, const std_msgs::Header& header)
+{
+  sensor_msgs::CameraInfo info;
+  info.header = header;
+  info.width = static_cast<uint32_t>(model.width);
+  info.height = static_cast<uint32_t>(model.height);
+  info.distortion_model = CameraModel::distortionModelName(model.distortion);
+  info.D = model.D;
+  if (info.D.empty() && model.distortion != DistortionModel::kEquidistant)
+    info.D.assign(5, 0.0);
+  info.K = {model.fx, 0, model.cx, 0, model.fy, model.cy, 0, 0, 1};
+  info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  info.P = {model.fx, 0, model.cx, 0, 0, model.fy, model.cy, 0, 0, 0, 1, 0};
+  return info;
+}
+
+sensor_msgs::PointCloud2Ptr makeBeamCloud(const std_msgs::Header& header, int rows, int cols,
+                                          const std::vector<Eigen::Vector3d>& points,
+                                          const std::vector<float>& intensity)
+{
+  sensor_msgs::PointCloud2Ptr cloud(new sensor_msgs::PointCloud2);
+  cloud->header = header;
+  cloud->height = static_cast<uint32_t>(rows);
+  cloud->width = static_cast<uint32_t>(cols);
+  cloud->is_dense = false;
+  cloud->is_bigendian = false;
+  sensor_msgs::PointCloud2Modifier modifier(*cloud);
+  modifier.setPointCloud2Fields(5, "x", 1, sensor_msgs::PointField::FLOAT32, "y", 1, sensor_msgs::PointField::FLOAT32,
+                                "z", 1, sensor_msgs::PointField::FLOAT32, "intensity", 1,
+                                sensor_msgs::PointField::FLOAT32, "beam", 1, sensor_msgs::PointField::UINT32);
+  modifier.resize(static_cast<size_t>(rows) * cols);
+  sensor_msgs::PointCloud2Iterator<float> it_x(*cloud, "x");
+  sensor_msgs::PointCloud2Iterator<float> it_i(*cloud, "intensity");
+  sensor_msgs::PointCloud2Iterator<uint32_t> it_b(*cloud, "beam");
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const size_t n = static_cast<size_t>(rows) * cols;
+  for (size_t i = 0; i < n; ++i, ++it_x, ++it_i, ++it_b)
+  {
+    const bool ok = i < points.size() && points[i].allFinite();
+    it_x[0] = ok ? static_cast<float>(points[i].x()) : nan;
+    it_x[1] = ok ? static_cast<float>(points[i].y()) : nan;
+    it_x[2] = ok ? static_cast<float>(points[i].z()) : nan;
+    *it_i = ok && i < intensity.size() ? intensity[i] : (ok ? 0.0f : nan);
+    *it_b = static_cast<uint32_t>(i);
+  }
+  return cloud;
+}
+
+bool readBeamCloud(const sensor_msgs::PointCloud2& cloud, int* rows, int* cols, std::vector<Eigen::Vector3d>* points,
+                   std::vector<float>* intensity, std::string* error)
+{
+  bool has_xyz[3] = {false, false, false};
+  bool has_intensity = false;
+  for (const auto& f : cloud.fields)
+  {
+    const bool f32 = f.datatype == sensor_msgs::PointField::FLOAT32 && f.count == 1;
+    if (f.name == "x")
+      has_xyz[0] = f32;
+    if (f.name == "y")
+      has_xyz[1] = f32;
+    if (f.name == "z")
+      has_xyz[2] = f32;
+    if (f.name == "intensity")
+      has_intensity = f32;
+  }
+  if (!has_xyz[0] || !has_xyz[1] || !has_xyz[2])
+  {
+    *error = "cloud lacks float32 x, y, z fields";
+    return false;
+  }
+  const size_t n = static_cast<size_t>(cloud.width) * cloud.height;
+  if (cloud.height == 0 || cloud.width == 0 || cloud.point_step == 0 ||
+      cloud.row_step < static_cast<size_t>(cloud.width) * cloud.point_step ||
+      cloud.data.size() < static_cast<size_t>(cloud.row_step) * cloud.height)
+  {
+    *error = "cloud is empty or its data is shorter than width*height*point_step";
+    return false;
+  }
+  *rows = static_cast<int>(cloud.height);
+  *cols = static_cast<int>(cloud.width);
+  points->assign(n, Eigen::Vector3d::Constant(std::numeric_limits<double>::quiet_NaN()));
+  if (intensity)
+    intensity->assign(n, 0.0f);
+  sensor_msgs::PointCloud2ConstIterator<float> it_x(cloud, "x");
+  for (size_t i = 0; i < n; ++i, ++it_x)
+    (*points)[i] = Eigen::Vector3d(it_x[0], it_x[1], it_x[2]);
+  if (intensity && has_intensity)
+  {
+    sensor_msgs::PointCloud2ConstIterator<float> it_i(cloud, "intensity");
+    for (size_t i = 0; i < n; ++i, ++it_i)
+      (*intensity)[i] = *it_i;
+  }
+  return true;
+}
+
+Spots spotsFromMsg(const CentroidArray& msg)
+{
+  Spots spots;
+  spots.reserve(msg.centroids.size());
+  for (const auto& c : msg.centroids)
+  {
+    Spot s;
+    s.x = c.x;
+    s.y = c.y;
+    s.area = c.area;
+    s.intensity = c.intensity;
+    s.beam = c.beam;
+    spots.push_back(s);
+  }
+  return spots;
+}
+
+void spotsToMsg(const Spots& spots, CentroidArray* msg)
+{
+  msg->centroids.resize(spots.size());
+  for (size_t i = 0; i < spots.size(); ++i)
+  {
+    auto& c = msg->centroids[i];
+    c.x = spots[i].x;
+    c.y = spots[i].y;
+    c.area = spots[i].area;
+    c.intensity = spots[i].intensity;
+    c.beam = spots[i].beam;
+  }
+}
+
+geometry_msgs::Transform transformFromIsometry(const Eigen::Isometry3d& T)
+{
+  geometry_msgs::Transform out;
+  out.translation.x = T.translation().x();
+  out.translation.y = T.translation().y();
+  out.translation.z = T.translation().z();
+  const Eigen::Quaterniond q(T.rotation());
+  out.rotation.x = q.x();
+  out.rotation.y = q.y();
+  out.rotation.z = q.z();
+  out.rotation.w = q.w();
+  return out;
+}
+
+Eigen::Isometry3d isometryFromTransform(const geometry_msgs::Transform& T)
+{
+  Eigen::Quaterniond q(T.rotation.w, T.rotation.x, T.rotation.y, T.rotation.z);
+  if (!(q.norm() > 1e-9) || !std::isfinite(q.norm()))
+    q = Eigen::Quaterniond::Identity();
+  Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
+  out.linear() = q.normalized().toRotationMatrix();
+  out.translation() = Eigen::Vector3d(T.translation.x, T.translation.y, T.translation.z);
+  return out;
+}
+
+}  // namespace structured_light_stabilizer
