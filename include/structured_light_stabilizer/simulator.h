@@ -64,7 +64,11 @@ struct ProjectorConfig
   double roll_rad = 0.087;         // in-plane rotation of the grid (5 deg by default)
   double converge_distance_m = 1.5;  // the central beam crosses the optical axis here
   double wavelength_nm = 520.0;
-  double dot_diameter_m = 0.004;     // physical size of a dot on the rock at 1.5 m
+  // Gaussian divergence of each beam (1-sigma, rad): a dot's sigma on the rock
+  // grows with its distance from the projector, so its image size stays about
+  // 2 px at any depth (3 mm at 1.5 m -> 2.0 px with fx = 1011.7 px).
+  double beam_sigma_rad = 0.002;
+  double power_scale = 1.0;          // relative dot brightness (1 = the study's LED design)
 };
 
 struct SensorConfig
