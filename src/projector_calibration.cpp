@@ -15,6 +15,9 @@ namespace
 
 std::string at(const YAML::Node& node)
 {
+  // A missing key yields an invalid node whose Mark() throws.
+  if (!node.IsDefined())
+    return "";
   const YAML::Mark m = node.Mark();
   if (m.line < 0)
     return "";
@@ -159,11 +162,32 @@ ProjectorCalibration makeGridProjector(int rows, int cols, const Eigen::Vector3d
   return cal;
 }
 
+namespace
+{
+bool parseProjectorCalibrationUnguarded(const std::string& yaml_text, ProjectorCalibration* out, std::string* error);
+}
+
 bool parseProjectorCalibration(const std::string& yaml_text, ProjectorCalibration* out, std::string* error)
 {
   std::string local_error;
   if (!error)
     error = &local_error;
+  // yaml-cpp signals many malformations by exceptions; none may escape.
+  try
+  {
+    return parseProjectorCalibrationUnguarded(yaml_text, out, error);
+  }
+  catch (const std::exception& e)
+  {
+    *error = std::string("malformed projector calibration: ") + e.what();
+    return false;
+  }
+}
+
+namespace
+{
+bool parseProjectorCalibrationUnguarded(const std::string& yaml_text, ProjectorCalibration* out, std::string* error)
+{
   YAML::Node root;
   try
   {
@@ -231,6 +255,7 @@ bool parseProjectorCalibration(const std::string& yaml_text, ProjectorCalibratio
   *out = cal;
   return true;
 }
+}  // namespace
 
 bool loadProjectorCalibration(const std::string& path, ProjectorCalibration* out, std::string* error)
 {
