@@ -963,7 +963,7 @@ double DotSunElectrons::snr() const
 }
 
 DotSunElectrons dotAndSunElectrons(const SceneAnalysis& a, double albedo, double sun_level, RadiometryModel model,
-                                   Brdf brdf, double exposure_s)
+                                   Brdf brdf, double exposure_s, double dot_sigma_m)
 {
   const SceneInputs& in = a.inputs;
   if (!std::isfinite(albedo) || albedo < 0.0 || albedo > 1.0)
@@ -979,15 +979,17 @@ DotSunElectrons dotAndSunElectrons(const SceneAnalysis& a, double albedo, double
   const double sun_rad = targetRadiance(in, sun_level * a.irradiance_latitude.max, albedo, in.sun_incidence_min_deg, brdf);
   out.sun_e = sunElectrons(c, sun_rad, t);
   const bool study = model == RadiometryModel::kStudyAsStated;
-  const double e_dot = dotIrradiance(c, study ? a.led_power_study_w : a.led_optical_power_w);
+  double e_dot = dotIrradiance(c, study ? a.led_power_study_w : a.led_optical_power_w);
+  if (dot_sigma_m > 0.0)
+    e_dot *= in.dot_area_m2 / (2.0 * kPi * dot_sigma_m * dot_sigma_m);
   out.dot_e = ledElectrons(c, targetRadiance(in, e_dot, albedo, in.led_incidence_deg, brdf), t) * (study ? 100.0 : 1.0);
   return out;
 }
 
-double dotToSunRatio(const SceneAnalysis& a, RadiometryModel model)
+double dotToSunRatio(const SceneAnalysis& a, RadiometryModel model, double dot_sigma_m)
 {
   // Albedo cancels; use 1 to avoid a 0/0 for a black surface.
-  return dotAndSunElectrons(a, 1.0, 1.0, model, Brdf::kLambertian).ratio();
+  return dotAndSunElectrons(a, 1.0, 1.0, model, Brdf::kLambertian, -1.0, dot_sigma_m).ratio();
 }
 
 double dotSnr(double ratio, double background_e, double read_noise_e, double dark_e)
@@ -1183,19 +1185,19 @@ std::string formatDesignTable(const SceneAnalysis& a)
   };
   auto value = [&](double lo, double hi, bool range) { return range ? "[" + fmt(lo) + ", " + fmt(hi) + "]" : fmt(lo); };
   std::ostringstream os;
-  char line[512];
-  std::snprintf(line, sizeof(line), "%-50s %-22s %-11s %-20s %s\n", "quantity (study ref)", "computed", "unit", "study",
-                "note");
-  os << line << std::string(130, '-') << "\n";
+  auto pad = [](const std::string& text, size_t width) {
+    // Display width: UTF-8 continuation bytes (the "§") take no column.
+    const size_t cols = std::count_if(text.begin(), text.end(), [](char ch) { return (ch & 0xC0) != 0x80; });
+    return cols >= width ? text + " " : text + std::string(width - cols, ' ');
+  };
+  os << pad("quantity (study ref)", 63) << pad("computed", 23) << pad("unit", 12) << pad("  study", 21) << "note\n"
+     << std::string(142, '-') << "\n";
   for (const auto& q : a.table)
   {
-    const std::string name = q.name + " " + q.ref;
     const std::string study = q.has_study ? value(q.study, q.study_max, q.is_range && std::isfinite(q.study_max)) : "-";
-    const std::string mark = q.has_study ? (q.agrees ? "  " : "! ") : "  ";
-    std::snprintf(line, sizeof(line), "%-50s %-22s %-11s %s%-18s %s\n", name.c_str(),
-                  value(q.value, q.value_max, q.is_range).c_str(), q.unit.c_str(), mark.c_str(), study.c_str(),
-                  q.note.c_str());
-    os << line;
+    const std::string mark = q.has_study && !q.agrees ? "! " : "  ";
+    os << pad(q.name + " " + q.ref, 63) << pad(value(q.value, q.value_max, q.is_range), 23) << pad(q.unit, 12)
+       << mark << pad(study, 19) << q.note << "\n";
   }
   os << "\n'!' marks a study value that differs from the computed one beyond the precision it is printed with.\n";
   return os.str();

@@ -7,6 +7,7 @@
 // Without an inputs file the study's values are used
 // (config/scene_analysis.yaml documents them). Exit status 0 on success,
 // 1 on bad inputs or an unwritable output, 2 on bad usage.
+#include <cmath>
 #include <cstdio>
 #include <exception>
 #include <fstream>
@@ -33,22 +34,36 @@ void usage(std::ostream& os)
 
 void printSimulatorRecipe(const sls::SceneAnalysis& a)
 {
-  const double corrected = sls::dotToSunRatio(a);
+  const sls::SceneInputs& in = a.inputs;
+  const double kDeg = 3.14159265358979323846 / 180.0;
   const double stated = sls::dotToSunRatio(a, sls::RadiometryModel::kStudyAsStated);
+  const double weakest = a.irradiance_latitude.min * std::cos(in.sun_incidence_max_deg * kDeg) /
+                         (a.irradiance_latitude.max * std::cos(in.sun_incidence_min_deg * kDeg));
+  std::printf("\nSimulator brightness (LightingConfig; sun_level 1 = F50 %.1f W/m^2 on the rock at %.0f deg)\n",
+              a.irradiance_latitude.max, in.sun_incidence_min_deg);
+  std::printf("  dot_to_sun_ratio = dot peak / sunlit rock, photo-electrons, at sun_level 1 (any albedo):\n");
+  std::printf("    study as stated (= its 'SNR 32')       : %.4g\n", stated);
+  for (double sigma : { 1e-3, 2e-3, 3e-3 })
+    std::printf("    corrected, dot sigma %.0f mm on the rock : %.4g\n", sigma * 1e3,
+                sls::dotToSunRatio(a, sls::RadiometryModel::kCorrected, sigma));
+  std::printf("  sun_level: study's worst case 1.0 (F50 max, %.0f deg); weakest sun %.3f (F50 min, %.0f deg); night 0\n",
+              in.sun_incidence_min_deg, weakest, in.sun_incidence_max_deg);
+  std::printf("  study's noise model (noise = sun electrons): SNR = ratio / sun_level: %.0f at 1.0, %.0f at %.3f\n",
+              stated, stated / weakest, weakest);
+  const double t = a.saturating_exposure_s;
   const sls::DotSunElectrons worst =
-      sls::dotAndSunElectrons(a, a.inputs.albedo_min, 1.0, sls::RadiometryModel::kCorrected, sls::Brdf::kLambertian,
-                              a.saturating_exposure_s);
-  std::printf("\nSimulator brightness (LightingConfig: sun_level 1 = F50 %.1f W/m^2 at %.0f deg incidence)\n",
-              a.irradiance_latitude.max, a.inputs.sun_incidence_min_deg);
-  std::printf("  dot_to_sun_ratio, corrected physics : %.4f (the dot adds %.1f%% to the sunlit rock)\n", corrected,
-              100.0 * corrected);
-  std::printf("  dot_to_sun_ratio, study as stated   : %.2f (its worst-case 'SNR 32')\n", stated);
-  std::printf("  sun_level of the study's worst case : 1.0 (best case, weakest sun: %.3f)\n",
-              a.irradiance_latitude.min * std::cos(a.inputs.sun_incidence_max_deg * 3.14159265358979 / 180.0) /
-                  (a.irradiance_latitude.max * std::cos(a.inputs.sun_incidence_min_deg * 3.14159265358979 / 180.0)));
-  std::printf("  corrected worst case at %.2f ms (brightest pixel at the full well): sun %.0f e-, dot %.0f e-, "
-              "SNR %.1f\n",
-              a.saturating_exposure_s * 1e3, worst.sun_e, worst.dot_e, worst.snr());
+      sls::dotAndSunElectrons(a, in.albedo_min, 1.0, sls::RadiometryModel::kCorrected, sls::Brdf::kLambertian, t);
+  const sls::DotSunElectrons best = sls::dotAndSunElectrons(a, in.albedo_max, weakest, sls::RadiometryModel::kCorrected,
+                                                            sls::Brdf::kLambertianGlossy, t);
+  std::printf("  corrected, exposure %.2f ms (brightest pixel at the full well):\n", t * 1e3);
+  std::printf("    worst (albedo %.2f, sun_level 1)       : sun %.0f e-, dot %.0f e-, SNR %.1f\n", in.albedo_min,
+              worst.sun_e, worst.dot_e, worst.snr());
+  std::printf("    weakest sun (albedo %.2f, level %.3f) : sun %.0f e-, dot %.0f e-, SNR %.1f\n", in.albedo_max, weakest,
+              best.sun_e, best.dot_e, best.snr());
+  std::printf("  image SNR of a dot of ratio r over B e- of sunlit rock: r B / sqrt((1 + r) B + read^2)\n");
+  for (double b : { 2e3, 2e4 })
+    std::printf("    B = %.0f e-, read 100 e-: ratio for SNR 32 = %.3g, for SNR 348 = %.3g\n", b,
+                sls::ratioForSnr(32, b, 100), sls::ratioForSnr(348, b, 100));
 }
 
 }  // namespace

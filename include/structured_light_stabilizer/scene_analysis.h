@@ -237,18 +237,22 @@ struct DotSunElectrons
   double snr() const;
 };
 
-// Photo-electrons per pixel at the study's exposure for a surface of this
-// albedo and BRDF. exposure_s <= 0 uses inputs.exposure_s.
+// Photo-electrons per pixel for a surface of this albedo and BRDF.
+// exposure_s <= 0 uses inputs.exposure_s. dot_sigma_m <= 0 spreads the dot's
+// power over the study's A_point (= a Gaussian of sigma 1 mm); otherwise the
+// dot is a Gaussian of that sigma on the rock (peak = power / (2 pi sigma^2)).
 DotSunElectrons dotAndSunElectrons(const SceneAnalysis& analysis, double albedo, double sun_level,
                                    RadiometryModel model = RadiometryModel::kCorrected,
-                                   Brdf brdf = Brdf::kLambertian, double exposure_s = -1.0);
+                                   Brdf brdf = Brdf::kLambertian, double exposure_s = -1.0,
+                                   double dot_sigma_m = -1.0);
 
 // Ratio of the dot's peak photo-electrons to the sunlit surface's at
 // sun_level = 1 (independent of albedo; the BRDF cancels because the study's
 // LED and brightest-sun incidences are both 10 deg). This is what
 // LightingConfig::dot_to_sun_ratio means when the simulator renders radiance
-// in photo-electron units.
-double dotToSunRatio(const SceneAnalysis& analysis, RadiometryModel model = RadiometryModel::kCorrected);
+// in photo-electron units. It scales as 1 / dot_sigma^2.
+double dotToSunRatio(const SceneAnalysis& analysis, RadiometryModel model = RadiometryModel::kCorrected,
+                     double dot_sigma_m = -1.0);
 
 // SNR of a dot of `ratio` times the background over a background of
 // background_e electrons, with shot, read and dark noise.

@@ -406,6 +406,10 @@ TEST(SceneAnalysis, DotToSunRatioForTheSimulator)
   EXPECT_NEAR(stated, 32, 2.5);
   // Physically the dot adds ~4 % to the sunlit rock in the brightest sun.
   EXPECT_NEAR(corrected, 0.041, 0.002);
+  // A_point = 2 pi (1 mm)^2: the default dot is a Gaussian of sigma 1 mm, and
+  // the peak falls as 1 / sigma^2 (the simulator's dots are ~3 mm).
+  EXPECT_NEAR(dotToSunRatio(a, RadiometryModel::kCorrected, 1e-3), corrected, 1e-4 * corrected);
+  EXPECT_NEAR(dotToSunRatio(a, RadiometryModel::kCorrected, 3e-3), corrected / 9, 1e-4 * corrected);
 
   // sun_level scales the sun only; the dot stays.
   const DotSunElectrons half = dotAndSunElectrons(a, 0.2, 0.5), full = dotAndSunElectrons(a, 0.2, 1.0);
