@@ -331,7 +331,27 @@ int readInt(const YAML::Node& node, const std::string& what, const std::string& 
 
 }  // namespace
 
+namespace
+{
+SceneInputs parseSceneInputs(const std::string& yaml_text, const std::string& source);
+}
+
 SceneInputs sceneInputsFromYaml(const std::string& yaml_text, const std::string& source)
+{
+  try
+  {
+    return parseSceneInputs(yaml_text, source);
+  }
+  catch (const YAML::Exception& e)
+  {
+    // e.g. a key that is itself a list or a mapping.
+    throw std::invalid_argument("scene_analysis: " + source + ": unexpected YAML structure: " + e.what());
+  }
+}
+
+namespace
+{
+SceneInputs parseSceneInputs(const std::string& yaml_text, const std::string& source)
 {
   YAML::Node root;
   try
@@ -453,6 +473,7 @@ SceneInputs sceneInputsFromYaml(const std::string& yaml_text, const std::string&
   }
   return in;
 }
+}  // namespace
 
 SceneInputs loadSceneInputs(const std::string& path)
 {

@@ -486,6 +486,8 @@ TEST(SceneAnalysis, MalformedYamlIsAClearError)
   EXPECT_NE(typo.find("test.yaml:2"), std::string::npos);
   EXPECT_NE(yamlError("scene:\n  distance_max_m: far\n").find("is not a number"), std::string::npos);
   EXPECT_NE(yamlError("scene: 3\n").find("must be a mapping"), std::string::npos);
+  EXPECT_NE(yamlError("scene: {[1, 2]: 3}\n").find("test.yaml"), std::string::npos);  // a key that is a list
+  EXPECT_NE(yamlError("? [a]\n: 1\n").find("test.yaml"), std::string::npos);
   EXPECT_NE(yamlError("camera:\n  quantum_efficiency: [[400, 0.1], [800]]\n").find("pair"), std::string::npos);
   EXPECT_NE(yamlError("led: {dot_rows: 2.5}\n").find("integer"), std::string::npos);
   // Out of range through YAML names the field and the file.
