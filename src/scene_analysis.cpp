@@ -938,7 +938,8 @@ SceneAnalysis analyseScene(const SceneInputs& inputs)
              "2.4556", "26.9410", "x1e7 from (2.21), / " + num(study_scale_ratio) + " (optical power), /100 (slip)");
 
   t.add("read_noise", "Readout noise per pixel", "(2.15)-(2.16)", a.read_noise_e, 1, "e-", "2.3842e-05",
-        "(2.15) divides the 25 e- RMS by the number of pixels (25 / 1048576 = 2.3842e-5); read noise is per pixel");
+        "(2.15) divides the 25 e- RMS by the number of pixels (25 / 1048576 = 2.3842e-5); read noise is per pixel "
+        "(the study's own table 2.1 lists 25 electrons)");
   t.add("dark_current", "Dark current per pixel at temperature_k", "(2.17)", a.dark_current_e_s, 1, "e-/s", "",
         "datasheet 30 pA/cm^2 at 20 C scaled by Janesick's law T^1.5 exp(-Eg/2kT)");
   t.add("dark_noise", "Dark current noise", "(2.17)-(2.18)", a.dark_noise_e, 1, "e-", "0.0067",
@@ -946,6 +947,10 @@ SceneAnalysis analyseScene(const SceneInputs& inputs)
         "square root; the law is T^1.5 with D_FM in nA/cm^2 at 300 K. Negligible next to the readout noise");
   t.add("noise_floor", "Noise without sunlight N", "(2.19)", a.noise_floor_e, 1, "e-", "0.0067",
         "25 e- readout noise, not 0.0067");
+  t.addRange("noise_sunlit", "Noise with sunlight", "(2.25)",
+             { std::sqrt(a.sun_electrons.min + dark_e + r2), std::sqrt(a.sun_electrons.max + dark_e + r2) }, 1, "e-",
+             "0.0219", "0.8457",
+             "(2.25) takes delta_shot = Nen_CCD, the signal itself; shot noise is its square root");
   t.addRange("snr_sun", "SNR case 1: sun only", "(2.23)", a.snr_sun, 1, "", "3.1", "126.8",
              "the study divides photo-electrons 1e7 too few by a noise 4000 x too small; here S/sqrt(S + read^2 + "
              "dark), shot noise included");
@@ -1011,6 +1016,11 @@ double dotToSunRatio(const SceneAnalysis& a, RadiometryModel model, double dot_s
 {
   // Albedo cancels; use 1 to avoid a 0/0 for a black surface.
   return dotAndSunElectrons(a, 1.0, 1.0, model, Brdf::kLambertian, -1.0, dot_sigma_m).ratio();
+}
+
+double dotToSunRatio(const SceneInputs& inputs, RadiometryModel model, double dot_sigma_m)
+{
+  return dotToSunRatio(analyseScene(inputs), model, dot_sigma_m);
 }
 
 double dotSnr(double ratio, double background_e, double read_noise_e, double dark_e)

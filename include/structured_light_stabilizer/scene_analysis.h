@@ -251,7 +251,20 @@ DotSunElectrons dotAndSunElectrons(const SceneAnalysis& analysis, double albedo,
 // LED and brightest-sun incidences are both 10 deg). This is what
 // LightingConfig::dot_to_sun_ratio means when the simulator renders radiance
 // in photo-electron units. It scales as 1 / dot_sigma^2.
+//
+// For the simulator (LightingConfig::dot_to_sun_ratio refers to its 2 mrad
+// beam at 1.5 m, i.e. a dot of sigma 3 mm; sun_level 1 = this sun_level 1):
+//   dotToSunRatio(SceneInputs(), kStudyAsStated, 3e-3) = 3.66: the brightness
+//     the study claims (its worst-case "SNR 32" is this ratio x 9 for its
+//     1 mm dot); worst case sun_level 1, albedo 0.05; its weakest daylight
+//     sun is sun_level 0.176 (F50 = 94 W/m^2 at 50 deg), night 0.
+//   dotToSunRatio(SceneInputs(), kCorrected, 3e-3) = 0.0045: the physics of
+//     the study's LED (0.041 for its 1 mm dot).
+// The SNR a ratio gives in an image depends on the electrons behind a DN:
+// see ratioForSnr().
 double dotToSunRatio(const SceneAnalysis& analysis, RadiometryModel model = RadiometryModel::kCorrected,
+                     double dot_sigma_m = -1.0);
+double dotToSunRatio(const SceneInputs& inputs, RadiometryModel model = RadiometryModel::kCorrected,
                      double dot_sigma_m = -1.0);
 
 // SNR of a dot of `ratio` times the background over a background of

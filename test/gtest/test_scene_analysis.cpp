@@ -410,6 +410,11 @@ TEST(SceneAnalysis, DotToSunRatioForTheSimulator)
   // the peak falls as 1 / sigma^2 (the simulator's dots are ~3 mm).
   EXPECT_NEAR(dotToSunRatio(a, RadiometryModel::kCorrected, 1e-3), corrected, 1e-4 * corrected);
   EXPECT_NEAR(dotToSunRatio(a, RadiometryModel::kCorrected, 3e-3), corrected / 9, 1e-4 * corrected);
+  // The simulator's reference dot (2 mrad at 1.5 m): the study's claimed brightness.
+  const double sim_stated = dotToSunRatio(SceneInputs(), RadiometryModel::kStudyAsStated, 3e-3);
+  std::cout << "[ MEASURE ] simulator dot_to_sun_ratio (sigma 3 mm): study as stated = " << sim_stated
+            << ", corrected = " << dotToSunRatio(SceneInputs(), RadiometryModel::kCorrected, 3e-3) << "\n";
+  EXPECT_NEAR(sim_stated, stated / 9, 1e-4 * stated);
 
   // sun_level scales the sun only; the dot stays.
   const DotSunElectrons half = dotAndSunElectrons(a, 0.2, 0.5), full = dotAndSunElectrons(a, 0.2, 1.0);
