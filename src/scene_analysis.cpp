@@ -553,9 +553,6 @@ struct Ctx
   double band_mean_wl;
   double sun_eff;      // photon-weighted QE * lens over the band
   double led_eff;      // QE * lens at the LED wavelength
-  double led_power_opt;
-  double led_power_study;
-  double f50_min, f50_max;
 };
 
 double sunElectrons(const Ctx& c, double radiance, double exposure)
@@ -576,9 +573,9 @@ double dotIrradiance(const Ctx& c, double led_power)
   return c.in.led_lens_transmission * c.in.led_grid_transmission * led_power / n / c.in.dot_area_m2;
 }
 
-Ctx makeCtx(const SceneInputs& in, double f50_min, double f50_max, double led_power_opt, double led_power_study)
+Ctx makeCtx(const SceneInputs& in)
 {
-  Ctx c{ in, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0 };
+  Ctx c{ in, 0, 0, 0, 0, 0, 0 };
   c.efl = eflOf(in);
   c.cam = cameraFactor(in, c.efl);
   c.pixel_area = in.pixel_size_m * in.pixel_size_m;
@@ -588,10 +585,6 @@ Ctx makeCtx(const SceneInputs& in, double f50_min, double f50_max, double led_po
   c.sun_eff = integrate([&](double l) { return l * quantumEfficiency(in, l); }, l0, l1) /
               integrate([](double l) { return l; }, l0, l1) * in.lens_transmission;
   c.led_eff = quantumEfficiency(in, in.led_wavelength_m) * in.lens_transmission;
-  c.led_power_opt = led_power_opt;
-  c.led_power_study = led_power_study;
-  c.f50_min = f50_min;
-  c.f50_max = f50_max;
   return c;
 }
 
@@ -743,8 +736,7 @@ SceneAnalysis analyseScene(const SceneInputs& inputs)
   a.led_optical_power_w = a.led_luminous_flux_lm / a.led_luminous_efficacy_radiation_lm_w;
   a.led_lens_diameter_ratio = 2.0 * std::tan(alpha);
 
-  const Ctx c = makeCtx(in, a.irradiance_latitude.min, a.irradiance_latitude.max, a.led_optical_power_w,
-                        a.led_power_study_w);
+  const Ctx c = makeCtx(in);
   a.dot_power_w = in.led_lens_transmission * in.led_grid_transmission * a.led_optical_power_w /
                   (in.dot_rows * in.dot_cols);
   a.dot_irradiance = dotIrradiance(c, a.led_optical_power_w);
@@ -997,8 +989,7 @@ DotSunElectrons dotAndSunElectrons(const SceneAnalysis& a, double albedo, double
   if (!std::isfinite(sun_level) || sun_level < 0.0)
     fail("sun_level", "must be >= 0, got " + num(sun_level));
   const double t = exposure_s > 0.0 ? exposure_s : in.exposure_s;
-  const Ctx c = makeCtx(in, a.irradiance_latitude.min, a.irradiance_latitude.max, a.led_optical_power_w,
-                        a.led_power_study_w);
+  const Ctx c = makeCtx(in);
   DotSunElectrons out;
   out.read_noise_e = in.read_noise_e;
   out.dark_e = a.dark_current_e_s * t;
