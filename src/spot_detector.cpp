@@ -156,7 +156,7 @@ std::vector<std::string> SpotDetectorParams::sanitize()
   clampInt(&min_peak, 1, 255, "min_peak", &changes);
   clampInt(&mono_threshold, 1, 255, "mono_threshold", &changes);
   clampInt(&min_pixels, 1, 10000, "min_pixels", &changes);
-  clampInt(&window_radius_px, 0, 30, "window_radius_px", &changes);
+  clampInt(&window_radius_px, 0, 24, "window_radius_px", &changes);
   clampDouble(&min_sigma_px, 0.0, 20.0, "min_sigma_px", &changes);
   clampDouble(&max_sigma_px, 0.3, 20.0, "max_sigma_px", &changes);
   orderPair(&min_sigma_px, &max_sigma_px, "min_sigma_px", "max_sigma_px", &changes);
