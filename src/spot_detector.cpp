@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include <opencv2/core/hal/intrin.hpp>
@@ -153,16 +154,26 @@ std::vector<std::string> SpotDetectorParams::sanitize()
   clampInt(&projector_rows, 1, 1000, "projector_rows", &changes);
   clampInt(&projector_cols, 1, 1000, "projector_cols", &changes);
   clampInt(&detect_threshold, 1, 255, "detect_threshold", &changes);
+  clampDouble(&red_weight, 0.0, 1.0, "red_weight", &changes);
   clampInt(&min_peak, 1, 255, "min_peak", &changes);
   clampInt(&mono_threshold, 1, 255, "mono_threshold", &changes);
   clampInt(&min_pixels, 1, 10000, "min_pixels", &changes);
+  clampInt(&coarse_threshold, 0, 255, "coarse_threshold", &changes);
   clampInt(&window_radius_px, 0, 24, "window_radius_px", &changes);
   clampDouble(&min_sigma_px, 0.0, 20.0, "min_sigma_px", &changes);
   clampDouble(&max_sigma_px, 0.3, 20.0, "max_sigma_px", &changes);
   orderPair(&min_sigma_px, &max_sigma_px, "min_sigma_px", "max_sigma_px", &changes);
+  clampDouble(&led_red_ratio, 0.0, 10.0, "led_red_ratio", &changes);
+  clampDouble(&led_blue_ratio, 0.0, 10.0, "led_blue_ratio", &changes);
   clampDouble(&max_red_deficit, 0.0, 100.0, "max_red_deficit", &changes);
-  clampDouble(&max_chroma_ratio, 0.0, 100.0, "max_chroma_ratio", &changes);
+  clampDouble(&max_chroma_error, 0.0, 100.0, "max_chroma_error", &changes);
   clampInt(&saturation_level, 1, 255, "saturation_level", &changes);
+  clampDouble(&min_sigma_fraction, 0.0, 1.0, "min_sigma_fraction", &changes);
+  clampDouble(&max_sigma_factor, 0.0, 1000.0, "max_sigma_factor", &changes);
+  if (max_sigma_factor > 0 && max_sigma_factor < 1.0)
+    clampDouble(&max_sigma_factor, 1.0, 1000.0, "max_sigma_factor", &changes);
+  clampDouble(&max_contrast_factor, 0.0, 1000.0, "max_contrast_factor", &changes);
+  clampInt(&consistency_min_spots, 1, 100000, "consistency_min_spots", &changes);
   return changes;
 }
 
@@ -342,18 +353,13 @@ void sortIntoRows(Spots* spots, int cols, int rows, bool assign_beams)
 
 namespace
 {
-// Greenness of one pixel: g - max(r, b), floored at 0. Reddish rock scores 0
-// whatever its albedo; the dot's 520 nm light raises g alone. r and b sit at
-// byte offsets 0 and 2 in every colour layout accepted, so one formula fits all.
-inline int greenness(const uint8_t* px)
+// Greenness of one pixel: g - max(k r, b), floored at 0, k = red_weight in
+// 1/256 units. Reddish rock (g/r about 0.55-0.65) scores 0 whatever its
+// albedo or the sun; the projector's 520 nm light raises g far more than r or
+// b; grey, white and bluish clutter scores 0 too.
+inline int greenness(const uint8_t* px, const Layout& L, int k256)
 {
-  return std::max(0, int(px[1]) - std::max(int(px[0]), int(px[2])));
-}
-
-template <int kChannels>
-inline int score(const uint8_t* px)
-{
-  return kChannels == 1 ? int(px[0]) : greenness(px);
+  return std::max(0, int(px[L.g]) - std::max((k256 * int(px[L.r])) >> 8, int(px[L.b])));
 }
 
 template <typename RunT>
@@ -365,17 +371,30 @@ inline void markPixel(std::vector<RunT>* runs, int y, int x)
     runs->push_back({y, x, x});
 }
 
+#if CV_SIMD128
+// k * r / 256 for 16 pixels, through 16-bit lanes.
+inline cv::v_uint8x16 scaleRed(const cv::v_uint8x16& r, const cv::v_uint16x8& k)
+{
+  cv::v_uint16x8 lo, hi;
+  cv::v_expand(r, lo, hi);
+  return cv::v_pack(cv::v_shr<8>(cv::v_mul_wrap(lo, k)), cv::v_shr<8>(cv::v_mul_wrap(hi, k)));
+}
+#endif
+
 // Candidate pixels (score >= threshold) of one row, appended as runs. One
 // pass over the row, 16 pixels at a time when SIMD is available: a block
-// without a candidate costs a deinterleaving load, a max, a saturating
-// subtraction and one test, which keeps the whole frame at the memory
-// bandwidth limit.
-template <int kChannels, typename RunT>
-void rowRuns(const uint8_t* row, int width, int y, int threshold, std::vector<RunT>* runs)
+// without a candidate costs a deinterleaving load, a few multiply/max/
+// saturating-subtract operations and one test, which keeps the whole frame
+// near the memory bandwidth limit. kRedFirst: byte 0 is red (rgb8, rgba8).
+// score_row (may be null) receives every pixel's score, for the coarse pass.
+template <int kChannels, bool kRedFirst, typename RunT>
+void rowRuns(const uint8_t* row, int width, int y, int threshold, int k256, std::vector<RunT>* runs,
+             uint8_t* score_row)
 {
   int x = 0;
 #if CV_SIMD128
   const cv::v_uint8x16 vthr = cv::v_setall_u8(static_cast<uint8_t>(threshold));
+  const cv::v_uint16x8 vk = cv::v_setall_u16(static_cast<uint16_t>(k256));
   alignas(16) uint8_t hit[16];
   for (; x + 16 <= width; x += 16)
   {
@@ -384,18 +403,19 @@ void rowRuns(const uint8_t* row, int width, int y, int threshold, std::vector<Ru
     {
       s = cv::v_load(row + x);
     }
-    else if (kChannels == 3)
-    {
-      cv::v_uint8x16 c0, c1, c2;
-      cv::v_load_deinterleave(row + 3 * x, c0, c1, c2);
-      s = c1 - cv::v_max(c0, c2);  // saturating
-    }
     else
     {
       cv::v_uint8x16 c0, c1, c2, c3;
-      cv::v_load_deinterleave(row + 4 * x, c0, c1, c2, c3);
-      s = c1 - cv::v_max(c0, c2);
+      if (kChannels == 3)
+        cv::v_load_deinterleave(row + 3 * x, c0, c1, c2);
+      else
+        cv::v_load_deinterleave(row + 4 * x, c0, c1, c2, c3);
+      const cv::v_uint8x16& r = kRedFirst ? c0 : c2;
+      const cv::v_uint8x16& b = kRedFirst ? c2 : c0;
+      s = c1 - cv::v_max(scaleRed(r, vk), b);  // saturating
     }
+    if (score_row)
+      cv::v_store(score_row + x, s);
     const cv::v_uint8x16 m = s >= vthr;
     if (!cv::v_check_any(m))
       continue;
@@ -405,9 +425,16 @@ void rowRuns(const uint8_t* row, int width, int y, int threshold, std::vector<Ru
         markPixel(runs, y, x + i);
   }
 #endif
+  const Layout L = kRedFirst ? Layout{0, 1, 2, kChannels} : Layout{2, 1, 0, kChannels};
   for (; x < width; ++x)
-    if (score<kChannels>(row + kChannels * x) >= threshold)
+  {
+    const uint8_t* px = row + kChannels * x;
+    const int score = kChannels == 1 ? int(px[0]) : greenness(px, L, k256);
+    if (score_row)
+      score_row[x] = static_cast<uint8_t>(score);
+    if (score >= threshold)
       markPixel(runs, y, x);
+  }
 }
 
 int findRoot(std::vector<int>& parent, int i)
@@ -424,7 +451,7 @@ struct Blob
 {
   int count = 0;
   double sum = 0, sx = 0, sy = 0;
-  int peak = 0;
+  int peak = 0, peak_x = 0, peak_y = 0;
   int x0 = 1 << 30, y0 = 1 << 30, x1 = -1, y1 = -1;
 };
 
@@ -432,6 +459,9 @@ struct Refined
 {
   double x = 0, y = 0, sigma = 0, flux = 0;
   double red_ratio = 0, blue_ratio = 0;  // excess over background relative to green's
+  double red_slack = 0;                  // how far texture alone could move the red ratio
+  double background = 0;                 // local background level of the weight channel (DN)
+  bool on_pedestal = false;              // found by the small-window retry
   cv::Rect window;
 };
 
@@ -443,10 +473,13 @@ struct Refined
 struct Plane
 {
   double a = 0, bx = 0, by = 0;
+  double spread = 0;  // robust RMS of the border about the plane (texture + noise)
   double at(int dx, int dy) const { return a + bx * dx + by * dy; }
 };
 
-Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, int H)
+// The value fitted is channel ch minus kappa times channel ch2 (ch2 < 0: ch alone).
+Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, int H, int ch2 = -1,
+                  double kappa = 0.0)
 {
   struct Sample
   {
@@ -456,7 +489,8 @@ Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, i
   Sample samples[8 * 24];
   int n = 0;
   auto add = [&](int dx, int dy) {
-    samples[n++] = {dx, dy, double(img.ptr<uint8_t>(cy + dy)[(cx + dx) * pixel_bytes + ch])};
+    const uint8_t* px = img.ptr<uint8_t>(cy + dy) + (cx + dx) * pixel_bytes;
+    samples[n++] = {dx, dy, double(px[ch]) - (ch2 >= 0 ? kappa * px[ch2] : 0.0)};
   };
   for (int dx = -H; dx <= H; ++dx)
   {
@@ -502,8 +536,11 @@ Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, i
   for (int i = 0; i < n; ++i)
     res[i] = std::abs(samples[i].v - p.at(samples[i].dx, samples[i].dy));
   std::nth_element(res, res + n / 2, res + n);
-  const double limit = std::max(2.0, 3.0 * 1.4826 * res[n / 2]);
-  return fit(&limit, p);
+  const double mad = 1.4826 * res[n / 2];
+  const double limit = std::max(2.0, 3.0 * mad);
+  Plane robust = fit(&limit, p);
+  robust.spread = mad;
+  return robust;
 }
 
 // Iteratively Gaussian-weighted centroid with adaptive sigma (star-tracker
@@ -515,8 +552,41 @@ Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, i
 // real, pixel-integrated, clipped or noisy dots). The window is set by s, not
 // by a threshold, so no pixel enters or leaves it because of noise, and a
 // clipped (saturated) core stays symmetric, hence unbiased.
-bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, double x0, double y0, double sigma0, int fixed_radius,
-                double max_sigma, Refined* out)
+// Green-over-red ratio of the rock on the window's border (least squares
+// through the origin); 0 when the border is too dark to tell (night).
+double rockRatio(const cv::Mat& img, int pixel_bytes, int g_ch, int r_ch, int cx, int cy, int H)
+{
+  double gr = 0, rr = 0;
+  int n = 0;
+  auto add = [&](int dx, int dy) {
+    const uint8_t* px = img.ptr<uint8_t>(cy + dy) + (cx + dx) * pixel_bytes;
+    gr += double(px[g_ch]) * px[r_ch];
+    rr += double(px[r_ch]) * px[r_ch];
+    ++n;
+  };
+  for (int d = -H; d <= H; ++d)
+  {
+    add(d, -H);
+    add(d, H);
+  }
+  for (int d = -H + 1; d <= H - 1; ++d)
+  {
+    add(-H, d);
+    add(H, d);
+  }
+  if (rr < 9.0 * n)  // red below ~3 DN: no sunlit texture to follow
+    return 0.0;
+  return std::min(1.5, std::max(0.0, gr / rr));
+}
+
+// With red_ch >= 0 the weight channel is g - kappa r, kappa the rock's own
+// green/red ratio around the dot: the sunlit rock texture under the dot then
+// cancels pixel by pixel (it is in red as much as in green), and the dot,
+// which barely reaches red, stays. A plane fitted to the window's border can
+// only remove a gradient, not texture, which at full sun biases the centroid
+// by a tenth of a pixel.
+bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double x0, double y0, double sigma0,
+                int fixed_radius, double max_sigma, Refined* out)
 {
   double xc = x0, yc = y0, sw = sigma0;
   const int W = img.cols, Hgt = img.rows;
@@ -524,7 +594,7 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, double x0, double y
   float vals[(2 * kMaxRadius + 1) * (2 * kMaxRadius + 1)];
   double gx[2 * kMaxRadius + 1], gy[2 * kMaxRadius + 1];
   int cx = -1, cy = -1, H = -1;
-  double flux = 0;
+  double flux = 0, background = 0;
   bool converged = false;
   for (int it = 0; it < 12 && !converged; ++it)
   {
@@ -541,13 +611,19 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, double x0, double y
       cx = ncx;
       cy = ncy;
       H = nH;
-      const Plane bg = borderPlane(img, pixel_bytes, ch, cx, cy, H);
+      const double kappa = red_ch >= 0 ? rockRatio(img, pixel_bytes, ch, red_ch, cx, cy, H) : 0.0;
+      const Plane bg = borderPlane(img, pixel_bytes, ch, cx, cy, H, red_ch, kappa);
+      background = borderPlane(img, pixel_bytes, ch, cx, cy, H).a;
       float* v = vals;
       for (int dy = -H; dy <= H; ++dy)
       {
-        const uint8_t* row = img.ptr<uint8_t>(cy + dy) + (cx - H) * pixel_bytes + ch;
+        const uint8_t* row = img.ptr<uint8_t>(cy + dy) + (cx - H) * pixel_bytes;
         for (int dx = -H; dx <= H; ++dx)
-          *v++ = static_cast<float>(row[(dx + H) * pixel_bytes] - bg.at(dx, dy));
+        {
+          const uint8_t* px = row + (dx + H) * pixel_bytes;
+          const double value = px[ch] - (kappa > 0.0 ? kappa * px[red_ch] : 0.0);
+          *v++ = static_cast<float>(value - bg.at(dx, dy));
+        }
       }
     }
     const double inv2s2 = 1.0 / (2.0 * sw * sw);
@@ -607,19 +683,28 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, double x0, double y
   out->y = yc;
   out->sigma = sw;
   out->flux = flux;
+  out->background = background;
   out->window = cv::Rect(cx - H, cy - H, 2 * H + 1, 2 * H + 1);
   return true;
 }
 
-// Red and blue excess of the spot over the local background, relative to the
-// green excess, Gaussian-weighted, over unclipped pixels only.
-void chroma(const cv::Mat& img, const Layout& L, int saturation, Refined* r)
+// Colour of the spot's light. Red: excess over the local background plane
+// relative to the green excess (texture-sensitive; slack says how much).
+// Blue: measured on texture-free signals, green - kappa_g red and blue -
+// kappa_b red (kappa = the rock's own ratios on the border), so sunlit rock
+// texture cancels and what remains is the added light's blue/green ratio,
+// (led_b - kappa_b led_r) / (1 - kappa_g led_r) for a dot. Gaussian-weighted,
+// unclipped pixels only.
+void chroma(const cv::Mat& img, const Layout& L, int saturation, double led_red, double led_blue, Refined* r)
 {
   const int H = (r->window.width - 1) / 2;
   const int cx = r->window.x + H, cy = r->window.y + H;
+  const double kg = rockRatio(img, L.step, L.g, L.r, cx, cy, H);
+  const double kb = rockRatio(img, L.step, L.b, L.r, cx, cy, H);
   const Plane pr = borderPlane(img, L.step, L.r, cx, cy, H);
   const Plane pg = borderPlane(img, L.step, L.g, cx, cy, H);
-  const Plane pb = borderPlane(img, L.step, L.b, cx, cy, H);
+  const Plane pd = borderPlane(img, L.step, L.g, cx, cy, H, L.r, kg);
+  const Plane pb = borderPlane(img, L.step, L.b, cx, cy, H, L.r, kb);
   const double inv2s2 = 1.0 / (2.0 * r->sigma * r->sigma);
   double gx[64], gy[64];
   for (int d = -H; d <= H && d + H < 64; ++d)
@@ -628,7 +713,7 @@ void chroma(const cv::Mat& img, const Layout& L, int saturation, Refined* r)
     gx[d + H] = std::exp(-ex * ex * inv2s2);
     gy[d + H] = std::exp(-ey * ey * inv2s2);
   }
-  double er = 0, eg = 0, eb = 0;
+  double er = 0, eg = 0, ed = 0, eb = 0, sum_w = 0;
   for (int dy = -H; dy <= H; ++dy)
   {
     const uint8_t* row = img.ptr<uint8_t>(cy + dy);
@@ -638,20 +723,27 @@ void chroma(const cv::Mat& img, const Layout& L, int saturation, Refined* r)
       if (px[L.r] >= saturation || px[L.g] >= saturation || px[L.b] >= saturation)
         continue;
       const double w = gx[dx + H] * gy[dy + H];
+      sum_w += w;
       er += w * (px[L.r] - pr.at(dx, dy));
       eg += w * (px[L.g] - pg.at(dx, dy));
-      eb += w * (px[L.b] - pb.at(dx, dy));
+      ed += w * (px[L.g] - kg * px[L.r] - pd.at(dx, dy));
+      eb += w * (px[L.b] - kb * px[L.r] - pb.at(dx, dy));
     }
   }
-  if (eg > 1e-6)
+  if (eg > 1e-6 && ed > 1e-6)
   {
     r->red_ratio = er / eg;
-    r->blue_ratio = eb / eg;
+    // Rock texture is spatially correlated over the window, so its effect on
+    // the weighted sums scales with the sum of the weights, not its root.
+    r->red_slack = pr.spread * sum_w / eg;
+    // Mapped back to the LED's blue/green ratio for comparison.
+    const double expected = (led_blue - kb * led_red) / std::max(0.1, 1.0 - kg * led_red);
+    r->blue_ratio = eb / ed - expected + led_blue;
   }
   else
   {
-    // Every pixel clipped, or no green excess at all: nothing to judge by here.
-    r->red_ratio = r->blue_ratio = 0.0;
+    // No green excess over the rock: not light added by the projector.
+    r->red_ratio = r->blue_ratio = std::numeric_limits<double>::quiet_NaN();
   }
 }
 }  // namespace
@@ -668,21 +760,23 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
   const int threshold = mono ? p.mono_threshold : p.detect_threshold;
 
   runs_.clear();
+  const int k256 = static_cast<int>(std::lround(p.red_weight * 256.0));
+  const bool red_first = format == PixelFormat::kRgb8 || format == PixelFormat::kRgba8;
+  const bool coarse = p.coarse_threshold > 0 && !mono && image.rows >= 8 && image.cols >= 8;
+  if (coarse)
+    score_.create(image.rows, image.cols, CV_8UC1);
   for (int y = 0; y < image.rows; ++y)
   {
     const uint8_t* row = image.ptr<uint8_t>(y);
-    switch (L.step)
-    {
-      case 1:
-        rowRuns<1>(row, image.cols, y, threshold, &runs_);
-        break;
-      case 3:
-        rowRuns<3>(row, image.cols, y, threshold, &runs_);
-        break;
-      default:
-        rowRuns<4>(row, image.cols, y, threshold, &runs_);
-        break;
-    }
+    uint8_t* score_row = coarse ? score_.ptr<uint8_t>(y) : nullptr;
+    if (L.step == 1)
+      rowRuns<1, false>(row, image.cols, y, threshold, k256, &runs_, score_row);
+    else if (L.step == 3)
+      red_first ? rowRuns<3, true>(row, image.cols, y, threshold, k256, &runs_, score_row)
+                : rowRuns<3, false>(row, image.cols, y, threshold, k256, &runs_, score_row);
+    else
+      red_first ? rowRuns<4, true>(row, image.cols, y, threshold, k256, &runs_, score_row)
+                : rowRuns<4, false>(row, image.cols, y, threshold, k256, &runs_, score_row);
   }
   tm.threshold_ms = msSince(t);
 
@@ -730,17 +824,74 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     const uint8_t* row = image.ptr<uint8_t>(run.y);
     for (int x = run.x0; x <= run.x1; ++x)
     {
-      const int s = mono ? row[x] : greenness(row + x * L.step);
+      const int s = mono ? row[x] : greenness(row + x * L.step, L, k256);
       ++b.count;
       b.sum += s;
       b.sx += double(s) * x;
       b.sy += double(s) * run.y;
-      b.peak = std::max(b.peak, s);
+      if (s > b.peak)
+      {
+        b.peak = s;
+        b.peak_x = x;
+        b.peak_y = run.y;
+      }
     }
     b.x0 = std::min(b.x0, run.x0);
     b.x1 = std::max(b.x1, run.x1);
     b.y0 = std::min(b.y0, run.y);
     b.y1 = std::max(b.y1, run.y);
+  }
+  // Candidates: the full-resolution blobs worth refining, then the coarse
+  // pass: wide dim dots (sigma 3-4 px on dark rock) whose every pixel stays
+  // below detect_threshold still stand out in the 4 x 4 block means of the
+  // greenness, where the noise is 4 times lower.
+  struct Candidate
+  {
+    double x, y, sigma0;
+    int count;
+    int x0, y0, x1, y1;
+    int peak_x = -1, peak_y = -1;  // strongest pixel (full-resolution blobs)
+  };
+  std::vector<Candidate> candidates;
+  for (const Blob& b : blobs)
+  {
+    if (b.count < p.min_pixels || (!mono && b.peak < p.min_peak) || !(b.sum > 0))
+      continue;  // noise: not worth a line in the debug output
+    // First guess of sigma from the candidate area: a Gaussian exceeds a
+    // threshold within ~2 sigma of its centre for typical peak/threshold ratios.
+    const double radius = 0.5 * std::max(b.x1 - b.x0 + 1, b.y1 - b.y0 + 1);
+    candidates.push_back({b.sx / b.sum, b.sy / b.sum, std::min(std::max(0.5 * radius, 1.0), p.max_sigma_px),
+                          b.count, b.x0, b.y0, b.x1, b.y1, b.peak_x, b.peak_y});
+  }
+  if (coarse)
+  {
+    constexpr int kBin = 4;
+    cv::resize(score_, coarse_, cv::Size(image.cols / kBin, image.rows / kBin), 0, 0, cv::INTER_AREA);
+    cv::compare(coarse_, cv::Scalar(p.coarse_threshold), coarse_mask_, cv::CMP_GE);
+    // Cells already explained by a full-resolution candidate are skipped.
+    for (const Candidate& c : candidates)
+    {
+      const cv::Rect cells(c.x0 / kBin - 1, c.y0 / kBin - 1, c.x1 / kBin - c.x0 / kBin + 3,
+                           c.y1 / kBin - c.y0 / kBin + 3);
+      coarse_mask_(cells & cv::Rect(0, 0, coarse_mask_.cols, coarse_mask_.rows)).setTo(0);
+    }
+    const int nc = cv::connectedComponentsWithStats(coarse_mask_, coarse_labels_, coarse_stats_, coarse_centroids_,
+                                                    8, CV_32S);
+    const size_t full_res = candidates.size();
+    for (int l = 1; l < nc; ++l)
+    {
+      const int* st = coarse_stats_.ptr<int>(l);
+      const double cx = (coarse_centroids_.at<double>(l, 0) + 0.5) * kBin - 0.5;
+      const double cy = (coarse_centroids_.at<double>(l, 1) + 0.5) * kBin - 0.5;
+      const double extent = kBin * std::max(st[cv::CC_STAT_WIDTH], st[cv::CC_STAT_HEIGHT]);
+      candidates.push_back({cx, cy, std::min(std::max(0.25 * extent, 1.5), p.max_sigma_px),
+                            st[cv::CC_STAT_AREA] * kBin * kBin, st[cv::CC_STAT_LEFT] * kBin - kBin,
+                            st[cv::CC_STAT_TOP] * kBin - kBin,
+                            (st[cv::CC_STAT_LEFT] + st[cv::CC_STAT_WIDTH] + 1) * kBin,
+                            (st[cv::CC_STAT_TOP] + st[cv::CC_STAT_HEIGHT] + 1) * kBin, -1, -1});
+    }
+    if (debug)
+      debug->coarse_candidates = static_cast<int>(candidates.size() - full_res);
   }
   tm.labelling_ms = msSince(t);
 
@@ -750,17 +901,27 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     if (debug)
       debug->rejected.push_back({x, y, why});
   };
-  for (const Blob& b : blobs)
+  for (const Candidate& b : candidates)
   {
-    if (b.count < p.min_pixels || (!mono && b.peak < p.min_peak) || !(b.sum > 0))
-      continue;  // noise: not worth a line in the debug output
-    const double bx = b.sx / b.sum, by = b.sy / b.sum;
-    // First guess of sigma from the candidate area: a Gaussian exceeds a
-    // threshold within ~2 sigma of its centre for typical peak/threshold ratios.
-    const double radius = 0.5 * std::max(b.x1 - b.x0 + 1, b.y1 - b.y0 + 1);
-    const double sigma0 = std::min(std::max(0.5 * radius, 1.0), p.max_sigma_px);
+    const double bx = b.x, by = b.y, sigma0 = b.sigma0;
     Refined r;
-    if (!refineSpot(image, L.step, L.g, bx, by, sigma0, p.window_radius_px, p.max_sigma_px, &r))
+    const int red_ch = mono || !p.subtract_rock_texture ? -1 : L.r;
+    bool ok = refineSpot(image, L.step, L.g, red_ch, bx, by, sigma0, p.window_radius_px, p.max_sigma_px, &r);
+    if ((!ok || r.sigma > p.max_sigma_px) && b.peak_x >= 0 && p.window_radius_px == 0)
+    {
+      // A dot on a green-ish pedestal (an olive mineral, a neighbour's
+      // flank) grows the adaptive window over the pedestal: retry from the
+      // strongest pixel in a small fixed window, whose border then lies on
+      // the pedestal and subtracts it.
+      Refined retry;
+      if (refineSpot(image, L.step, L.g, red_ch, b.peak_x, b.peak_y, 1.5, 5, p.max_sigma_px, &retry))
+      {
+        r = retry;
+        r.on_pedestal = true;
+        ok = true;
+      }
+    }
+    if (!ok)
     {
       reject(bx, by, "refinement failed (no signal or at the border)");
       continue;
@@ -778,9 +939,15 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
                          core[L.b] >= p.saturation_level;
     if (!mono && !clipped)
     {
-      chroma(image, L, p.saturation_level, &r);
-      if (r.red_ratio < -p.max_red_deficit || r.red_ratio > p.max_chroma_ratio ||
-          std::abs(r.blue_ratio) > p.max_chroma_ratio)
+      chroma(image, L, p.saturation_level, p.led_red_ratio, p.led_blue_ratio, &r);
+      // The red test sees the rock texture as much as the spot: off by default.
+      bool red_bad = p.max_red_deficit > 0 && (r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack ||
+                                               r.red_ratio > p.led_red_ratio + p.max_red_deficit + r.red_slack);
+      // A spot on a pedestal is suspect: the pedestal is often an olive or
+      // yellow mineral, whose own red shows up as extra red excess.
+      red_bad = red_bad || (r.on_pedestal && r.red_ratio > p.led_red_ratio + p.max_chroma_error);
+      if (!std::isfinite(r.blue_ratio) || red_bad ||
+          std::abs(r.blue_ratio - p.led_blue_ratio) > p.max_chroma_error)
       {
         reject(r.x, r.y, "colour: red/green " + std::to_string(r.red_ratio) + ", blue/green " +
                              std::to_string(r.blue_ratio));
@@ -823,6 +990,50 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
         drop[order[j]] = 1;
     }
   }
+  // Frame-level consistency: the dots of one frame share the projector's
+  // power and optics, so they share a size and a contrast over the rock they
+  // light (both vary with depth and slope, but far less than between a dot
+  // and a speck, or a sunlit green mineral). Outliers from the frame's median
+  // are clutter. Amplitude of a Gaussian from its self-weighted sum:
+  // sum = A pi sigma^2.
+  std::vector<size_t> alive;
+  for (size_t i = 0; i < kept.size(); ++i)
+    if (!drop[i])
+      alive.push_back(i);
+  if (static_cast<int>(alive.size()) >= std::max(1, p.consistency_min_spots))
+  {
+    std::vector<double> sig, con;
+    auto contrast = [](const Refined& r) {
+      const double amp = r.flux / (M_PI * r.sigma * r.sigma);
+      return amp / (std::max(0.0, r.background) + 4.0);
+    };
+    for (size_t i : alive)
+    {
+      sig.push_back(kept[i].sigma);
+      con.push_back(contrast(kept[i]));
+    }
+    std::nth_element(sig.begin(), sig.begin() + sig.size() / 2, sig.end());
+    std::nth_element(con.begin(), con.begin() + con.size() / 2, con.end());
+    const double sig_med = sig[sig.size() / 2], con_med = con[con.size() / 2];
+    for (size_t i : alive)
+    {
+      const Refined& r = kept[i];
+      if ((p.min_sigma_fraction > 0 && r.sigma < p.min_sigma_fraction * sig_med) ||
+          (p.max_sigma_factor > 0 && r.sigma > p.max_sigma_factor * sig_med))
+      {
+        drop[i] = 1;
+        reject(r.x, r.y, "sigma " + std::to_string(r.sigma) + " px far from the frame's median " +
+                             std::to_string(sig_med));
+      }
+      else if (p.max_contrast_factor > 0 && contrast(r) > p.max_contrast_factor * con_med)
+      {
+        drop[i] = 1;
+        reject(r.x, r.y, "contrast " + std::to_string(contrast(r)) + " above " +
+                             std::to_string(p.max_contrast_factor) + " x the frame's median " +
+                             std::to_string(con_med));
+      }
+    }
+  }
   Spots spots;
   std::vector<Refined> refined;
   for (size_t i = 0; i < kept.size(); ++i)
@@ -839,7 +1050,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
   if (debug)
   {
     // Per-spot debug data in the order of the sorted spots.
-    debug->candidates = static_cast<int>(blobs.size());
+    debug->candidates = static_cast<int>(candidates.size());
     for (const Spot& s : spots)
     {
       for (const Refined& r : refined)

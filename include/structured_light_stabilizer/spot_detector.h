@@ -10,7 +10,7 @@
 //    4-connected regions -> minimum pixel count -> centroid weighted by S
 //    (formulas 2.31-2.32) -> row sort (the top `cols` centroids form a row,
 //    sorted by x; repeat), which numbers the beams.
-//  - kFast (default): one SIMD pass thresholds the greenness g - max(r, b) in
+//  - kFast (default): one SIMD pass thresholds the greenness g - max(k r, b) in
 //    the raw frame, runs are grouped into blobs, and each blob is refined in a
 //    fixed window on the background-subtracted green channel with an
 //    iteratively Gaussian-weighted centroid (the star-tracker way), so mask
@@ -65,9 +65,9 @@ struct SpotDetectorParams
   // (half degrees), S and V in [0, 255]. The study's hue window 60-180 deg is
   // H 30-90 here.
   int blur_kernel = 1;  // box low-pass kernel size (odd, 1 = off, as in the study's unit test)
-  int h_min = 30, h_max = 90;
+  int h_min = 16, h_max = 90;
   int s_min = 60, s_max = 255;
-  int v_min = 50, v_max = 255;
+  int v_min = 35, v_max = 255;
   // The study used 4 + 4 for dots of ~300 px; our dots (sigma ~2 px, ~50 px)
   // vanish after 4 erosions, so the default is one of each.
   int erosions = 1;
@@ -80,21 +80,47 @@ struct SpotDetectorParams
   int projector_cols = 10;
 
   // --- Fast method.
-  int detect_threshold = 12;  // DN of g - max(r, b) for a candidate pixel
-  int min_peak = 20;          // DN; a blob's strongest greenness (mono8: intensity) must reach this
+  // Greenness g - max(red_weight * r, b): reddish rock (g/r 0.55-0.65)
+  // scores 0 with red_weight 0.75 while the dot keeps ~94 % of its peak.
+  double red_weight = 0.75;
+  int detect_threshold = 8;   // DN of greenness for a candidate pixel
+  int min_peak = 14;          // DN; a blob's strongest greenness (mono8: intensity) must reach this
   int mono_threshold = 128;   // DN of intensity for a candidate pixel in mono8 frames
   int min_pixels = 2;         // candidate pixels per blob
+  // Coarse pass: mean greenness over 4 x 4 blocks at least this (DN) makes a
+  // candidate too (wide dim dots); 0 = off. Not used for mono8.
+  int coarse_threshold = 3;
   int window_radius_px = 0;   // half size of the refinement window; 0 = from the blob's size
+  // Centroid weight g - kappa r, kappa = the rock's green/red ratio around the
+  // dot: removes the sunlit rock texture under the dot (false: g alone).
+  bool subtract_rock_texture = true;
   double min_sigma_px = 1.1;  // accepted range of the fitted Gaussian sigma (specks are sharper than dots)
   double max_sigma_px = 6.0;
-  // A dot adds light, almost all of it green, to the rock under it; a green
-  // mineral replaces the red rock, so red drops where green rises. Reject a
-  // blob whose red excess over the local background is below
-  // -max_red_deficit times its green excess, or whose red or blue excess
-  // exceeds max_chroma_ratio times it (white or yellow clutter).
-  double max_red_deficit = 0.3;
-  double max_chroma_ratio = 0.18;
-  int saturation_level = 250;  // DN; pixels at or above are clipped (excluded from the chroma test)
+  // A dot adds the projector's light to the rock under it, so the colour of
+  // that added light is the sensor's response to the projector (mostly
+  // green, some blue and red through the Bayer filters; calibrate
+  // led_*_ratio = excess / green excess from any frame). The blue test runs
+  // on texture-free signals (green and blue minus the rock's own multiple of
+  // red) and rejects olive minerals, grey, white and bluish clutter when the
+  // added light's blue/green differs from the LED's by more than
+  // max_chroma_error. The red test (a green mineral replaces red rock, so red
+  // drops where green rises: |red/green - led_red_ratio| > max_red_deficit)
+  // is also hit by rock texture at full sun, so it is off (0) by default.
+  double led_red_ratio = 0.08;
+  double led_blue_ratio = 0.22;
+  double max_red_deficit = 0.0;
+  double max_chroma_error = 0.15;
+  int saturation_level = 250;
+  // Frame-level consistency (when at least consistency_min_spots survive):
+  // reject spots smaller than min_sigma_fraction or larger than
+  // max_sigma_factor x the frame's median sigma (specks, mineral patches), or
+  // whose contrast (peak over local background) exceeds max_contrast_factor x
+  // the frame's median (sunlit green minerals are far brighter than the rock
+  // around them than a dot is). 0 disables each.
+  double min_sigma_fraction = 0.7;
+  double max_sigma_factor = 2.0;
+  double max_contrast_factor = 4.0;
+  int consistency_min_spots = 8;  // DN; pixels at or above are clipped (excluded from the chroma test)
 
   // Empty when usable, otherwise the first problem found.
   std::string validate() const;
@@ -122,6 +148,7 @@ struct SpotDetectorDebug
   std::vector<double> sigmas_px;     // fast: fitted sigma of each kept spot
   std::vector<cv::Vec2d> chroma;     // fast: (red, blue) excess / green excess of each kept spot
   int candidates = 0;                // blobs/regions considered before rejection
+  int coarse_candidates = 0;         // fast: extra candidates from the 4 x 4 binned pass
   // Fast: candidates dropped, where and why (drawn in the debug image).
   struct Rejection
   {
@@ -165,6 +192,7 @@ private:
   SpotDetectorParams params_;
   // Scratch reused across frames (no per-frame allocation in the hot path).
   cv::Mat blurred_, hsv_, mask_, labels_, stats_, centroids_;
+  cv::Mat score_, coarse_, coarse_mask_, coarse_labels_, coarse_stats_, coarse_centroids_;
   std::vector<Run> runs_;
   std::vector<int> parent_;
 };

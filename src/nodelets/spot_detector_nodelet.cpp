@@ -129,16 +129,25 @@ private:
     p.baseline_weight = config.baseline_weight == 1 ? BaselineWeight::kValue : BaselineWeight::kSaturation;
     p.projector_rows = projector_rows_;
     p.projector_cols = projector_cols_;
+    p.red_weight = config.red_weight;
     p.detect_threshold = config.detect_threshold;
     p.min_peak = config.min_peak;
     p.mono_threshold = config.mono_threshold;
     p.min_pixels = config.min_pixels;
+    p.coarse_threshold = config.coarse_threshold;
     p.window_radius_px = config.window_radius_px;
+    p.subtract_rock_texture = config.subtract_rock_texture;
     p.min_sigma_px = config.min_sigma_px;
     p.max_sigma_px = config.max_sigma_px;
+    p.led_red_ratio = config.led_red_ratio;
+    p.led_blue_ratio = config.led_blue_ratio;
     p.max_red_deficit = config.max_red_deficit;
-    p.max_chroma_ratio = config.max_chroma_ratio;
+    p.max_chroma_error = config.max_chroma_error;
     p.saturation_level = config.saturation_level;
+    p.min_sigma_fraction = config.min_sigma_fraction;
+    p.max_sigma_factor = config.max_sigma_factor;
+    p.max_contrast_factor = config.max_contrast_factor;
+    p.consistency_min_spots = config.consistency_min_spots;
     for (const std::string& change : p.sanitize())
       NODELET_WARN("SpotDetector: %s", change.c_str());
     // Show the values actually used in rqt_reconfigure.

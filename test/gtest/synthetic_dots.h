@@ -121,28 +121,30 @@ inline Frame render(const Config& cfg)
         return c;
     }
   };
+  // Clutter colours (b, g, r reflectance) as the scene simulator's.
   for (int i = 0; i < cfg.green_specks; ++i)
   {
     // A speck of 1-3 px seen through the optics (PSF sigma 0.7 px).
     const cv::Point2d c = random_point();
-    paint_patch(c.x, c.y, std::hypot(0.25 + 0.5 * uni(rng), 0.7), cv::Vec3d(0.2, 1.0, 0.3), 0.6, true);
+    paint_patch(c.x, c.y, std::hypot(0.25 + 0.5 * uni(rng), 0.7), cv::Vec3d(0.10, 0.40, 0.10), 1.0, true);
     f.clutter.push_back(c);
   }
   for (int i = 0; i < cfg.olive_minerals; ++i)
   {
     const cv::Point2d c = random_point();
-    paint_patch(c.x, c.y, 3 + 6 * uni(rng), cv::Vec3d(0.25, 0.6, 0.55), 0.45, false);
+    const double v = 0.10 + 0.08 * uni(rng);
+    paint_patch(c.x, c.y, 3 + 6 * uni(rng), cv::Vec3d(0.55 * v, 1.05 * v, 0.90 * v), 1.0, false);
   }
   for (int i = 0; i < cfg.green_blobs; ++i)
   {
     const cv::Point2d c = random_point();
-    paint_patch(c.x, c.y, cfg.sigma_px, cv::Vec3d(0.35, 1.0, 0.4), 0.5, true);
+    paint_patch(c.x, c.y, cfg.sigma_px, cv::Vec3d(0.14, 0.60, 0.08), 1.0, true);
     f.clutter.push_back(c);
   }
 
   // Dots: light added on top of the rock, scaled by its albedo.
   const double peak_dn = cfg.dot_to_sun_ratio * cfg.dn_per_albedo;  // per unit albedo
-  const cv::Vec3d leak(0.06, 1.0, 0.08);                             // b, g, r response to 520 nm
+  const cv::Vec3d leak(0.22, 1.0, 0.08);  // b, g, r response to 520 nm (as the simulator's)
   for (const cv::Point2d& p : f.dots)
   {
     const double flux_scale = 2 * M_PI * cfg.sigma_px * cfg.sigma_px * peak_dn;

@@ -37,8 +37,10 @@ def render_bgr(sigma=2.0, seed=1):
     ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
     for (x, y) in dots_truth():
         d = 180.0 * np.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * sigma * sigma))
+        # The sensor's response to the 520 nm projector (b, g, r) = (0.22, 1, 0.08).
+        img[:, :, 0] += 0.22 * d
         img[:, :, 1] += d
-        img[:, :, 2] += 0.05 * d
+        img[:, :, 2] += 0.08 * d
     img += rng.normal(0.0, 1.0, img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
