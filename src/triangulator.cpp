@@ -106,7 +106,7 @@ struct Candidate
 
 }  // namespace
 
-std::string TriangulatorConfig::validate() const
+std::string TriangulatorOptions::validate() const
 {
   std::ostringstream why;
   if (!(min_depth > 0.0) || !(max_depth > min_depth) || !std::isfinite(max_depth))
@@ -163,7 +163,7 @@ std::vector<int> sortIntoRows(const Spots& spots, int cols)
 }
 
 Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration& projector,
-                           const TriangulatorConfig& config)
+                           const TriangulatorOptions& config)
   : camera_(camera), projector_(projector), config_(config)
 {
   std::string why = camera_.validate();

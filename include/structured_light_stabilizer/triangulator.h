@@ -40,7 +40,7 @@ enum class BeamAssignment
   kSort,      // the study's row sort: only right when every dot is present and in order
 };
 
-struct TriangulatorConfig
+struct TriangulatorOptions
 {
   double min_depth = 0.8;  // metres, bounds of the epipolar segments and of accepted points
   double max_depth = 2.5;
@@ -109,7 +109,7 @@ public:
   // Throws std::invalid_argument when the camera, the projector or the
   // config is unusable (the message says which and why).
   Triangulator(const CameraModel& camera, const ProjectorCalibration& projector,
-               const TriangulatorConfig& config = TriangulatorConfig());
+               const TriangulatorOptions& config = TriangulatorOptions());
 
   TriangulationResult process(const Spots& spots) const;
 
@@ -123,7 +123,7 @@ public:
 
   const CameraModel& camera() const { return camera_; }
   const ProjectorCalibration& projector() const { return projector_; }
-  const TriangulatorConfig& config() const { return config_; }
+  const TriangulatorOptions& config() const { return config_; }
   const std::vector<EpipolarSegment>& segments() const { return segments_; }
 
 private:
@@ -142,7 +142,7 @@ private:
 
   CameraModel camera_;
   ProjectorCalibration projector_;
-  TriangulatorConfig config_;
+  TriangulatorOptions config_;
   std::vector<EpipolarSegment> segments_;
 };
 

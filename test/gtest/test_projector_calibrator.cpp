@@ -185,3 +185,38 @@ TEST(ProjectorCalibrator, FilesRoundTrip)
   std::remove(view_path.c_str());
   std::remove(cal_path.c_str());
 }
+
+// The three file forms load to rays; malformed files are refused with a
+// message that names the line or the beam at fault.
+TEST(ProjectorCalibrationFiles, FormsAndRefusals)
+{
+  const std::string dir = SLS_TEST_DATA_DIR;
+  ProjectorCalibration grid, rays, study;
+  std::string err;
+  ASSERT_TRUE(loadProjectorCalibration(dir + "/projector_grid.yaml", &grid, &err)) << err;
+  ASSERT_TRUE(loadProjectorCalibration(dir + "/projector_10x10.yaml", &rays, &err)) << err;
+  const ProjectorCalibration expected = sls_test::simLikeProjector(0.087);
+  ASSERT_EQ(grid.beamCount(), 100);
+  for (int i = 0; i < 100; ++i)
+    EXPECT_LT((grid.beams[i].direction - expected.beams[i].direction).norm(), 1e-12) << i;
+  ASSERT_TRUE(loadProjectorCalibration(dir + "/projector_study_1x10.yaml", &study, &err)) << err;
+  ASSERT_EQ(study.beamCount(), 10);
+  EXPECT_NEAR(study.beams[4].origin.x(), -0.30, 1e-12);
+  EXPECT_NEAR(study.beams[4].direction.x() / study.beams[4].direction.z(), 0.1944, 1e-12);
+  const struct
+  {
+    const char* file;
+    const char* must_mention;
+  } bad[] = {{"wrong_count.yaml", "3 entries"},        {"zero_direction.yaml", "beam 2"},
+             {"not_a_number.yaml", "beam 1 origin"},    {"backwards_beam.yaml", "beam 0"},
+             {"bad_rows.yaml", "'rows'"},               {"study_missing_key.yaml", "beam 1"},
+             {"not_yaml.yaml", "not valid YAML"},       {"does_not_exist.yaml", "cannot open"}};
+  for (const auto& b : bad)
+  {
+    ProjectorCalibration cal;
+    err.clear();
+    EXPECT_FALSE(loadProjectorCalibration(dir + "/bad/" + b.file, &cal, &err)) << b.file;
+    EXPECT_NE(err.find(b.must_mention), std::string::npos) << b.file << ": " << err;
+    std::cout << "[ MEASURE ] " << b.file << " -> " << err << "\n";
+  }
+}
