@@ -233,9 +233,9 @@ bool Triangulator::predictPixel(int beam, const std::vector<Eigen::Vector3d>& su
   return px->allFinite();
 }
 
-bool Triangulator::surrounded(int beam, const std::vector<int>& spot_of_beam,
-                              const std::vector<Eigen::Vector3d>& accepted_point,
-                              std::vector<Eigen::Vector3d>* support) const
+int Triangulator::supportOf(int beam, const std::vector<int>& spot_of_beam,
+                            const std::vector<Eigen::Vector3d>& accepted_point,
+                            std::vector<Eigen::Vector3d>* support) const
 {
   const int rows = projector_.rows, cols = projector_.cols;
   const int r = beam / cols, c = beam % cols;
@@ -255,7 +255,16 @@ bool Triangulator::surrounded(int beam, const std::vector<int>& spot_of_beam,
       right |= cc > c;
     }
   }
-  return (up && down) || (left && right);
+  if ((up && down) || (left && right))
+    return 2;
+  // One side only: extrapolate from a plane through the accepted beams
+  // within two rows/columns, which needs at least three of them.
+  support->clear();
+  for (int rr = std::max(0, r - 2); rr <= std::min(rows - 1, r + 2); ++rr)
+    for (int cc = std::max(0, c - 2); cc <= std::min(cols - 1, c + 2); ++cc)
+      if ((rr != r || cc != c) && spot_of_beam[rr * cols + cc] >= 0)
+        support->push_back(accepted_point[rr * cols + cc]);
+  return support->size() >= 3 ? 1 : 0;
 }
 
 void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px,
@@ -363,14 +372,15 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
     return triangulateBeam(ray, projector_.beams[beam], p, &gap);
   };
 
-  const int max_passes = 2 + projector_.rows + projector_.cols;
+  const int max_passes = 4 + 2 * (projector_.rows + projector_.cols);
+  // Only interpolation between accepted neighbours on opposite sides is
+  // used: extrapolating from one side favours whatever reading puts the spot
+  // on that side's surface, which an occluding edge turns into a wrong beam
+  // (measured: 6 wrong in 60 axis-aligned frames when allowed).
   for (int pass = 0; pass < max_passes; ++pass)
   {
     const bool use_prior = pass > 0 && config_.prediction_tolerance_px > 0.0;
-    // Prior pixel of every unaccepted beam from its accepted neighbours. Only
-    // a beam surrounded by accepted neighbours on opposite sides gets one:
-    // extrapolating from one side favours whatever hypothesis puts the spot
-    // on that side's surface, which is wrong at an occluding edge.
+    // Prior pixel of every unaccepted beam from its accepted neighbours.
     std::vector<Eigen::Vector2d> prior(n_beams, Eigen::Vector2d::Constant(kNaN));
     if (use_prior)
     {
@@ -379,7 +389,8 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
         if (spot_of_beam[i] >= 0 || cand_of_beam[i].empty())
           continue;
         std::vector<Eigen::Vector3d> support;
-        if (!surrounded(i, spot_of_beam, accepted_point, &support))
+        const int level = supportOf(i, spot_of_beam, accepted_point, &support);
+        if (level < 2)
           continue;
         Eigen::Vector2d px;
         if (predictPixel(i, support, &px))

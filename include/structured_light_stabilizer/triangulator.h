@@ -132,9 +132,11 @@ private:
   // (or the fronto-parallel plane at their mean depth); false if none.
   bool predictPixel(int beam, const std::vector<Eigen::Vector3d>& support, Eigen::Vector2d* px) const;
 
-  // Whether accepted neighbours (8-neighbourhood) of `beam` lie on opposite
-  // sides; *support receives their points.
-  bool surrounded(int beam, const std::vector<int>& spot_of_beam, const std::vector<Eigen::Vector3d>& accepted_point,
+  // Support of the surface prior of `beam`: 2 when accepted neighbours
+  // (8-neighbourhood) lie on opposite sides, 1 when only one side has them
+  // (then *support holds the accepted beams within two rows/columns, >= 3),
+  // 0 when there is too little; *support receives their points.
+  int supportOf(int beam, const std::vector<int>& spot_of_beam, const std::vector<Eigen::Vector3d>& accepted_point,
                   std::vector<Eigen::Vector3d>* support) const;
   // Drops accepted pairs that disagree with the surface of their neighbours.
   void rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px, const std::vector<char>& contested,
