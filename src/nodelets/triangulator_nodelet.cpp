@@ -217,7 +217,7 @@ private:
     if (!info)
     {
       NODELET_ERROR_THROTTLE(5.0, "Triangulator: no camera_info received on %s yet; nothing published",
-                             ros::names::resolve(getNodeHandle().getNamespace(), "camera/camera_info").c_str());
+                             getNodeHandle().resolveName("camera/camera_info").c_str());
       return;
     }
     if (info->width != msg->image_width || info->height != msg->image_height)
