@@ -2,8 +2,8 @@
 // a known scene (a rock with relief, exact beam hits projected with the
 // camera model, centroid noise, missing dots and clutter), and the true beam
 // hits on sim/ground_truth/points in the `points` layout, with the same stamp.
-// Stands in for the simulator + detector so that the Triangulator's rostest
-// depends on nothing but the core.
+// Stands in for the simulator + detector so that the Triangulator's and the
+// ProjectorCalibrator's rostests depend on nothing but the core.
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/PointCloud2.h>
@@ -20,7 +20,7 @@ int main(int argc, char** argv)
   ros::NodeHandle nh, pnh("~");
   std::string calibration_path;
   pnh.param<std::string>("projector_calibration", calibration_path, "");
-  double rate = 10.0, distance = 1.5, relief = 0.1, noise_px = 0.04, drop = 0.1;
+  double rate = 10.0, distance = 1.5, relief = 0.1, noise_px = 0.04, drop = 0.1, breathe = 0.1;
   int clutter = 10;
   pnh.param("rate", rate, rate);
   pnh.param("distance", distance, distance);
@@ -28,6 +28,7 @@ int main(int argc, char** argv)
   pnh.param("noise_px", noise_px, noise_px);
   pnh.param("drop_fraction", drop, drop);
   pnh.param("clutter", clutter, clutter);
+  pnh.param("breathe_fraction", breathe, breathe);
   ProjectorCalibration proj;
   std::string err;
   if (!loadProjectorCalibration(calibration_path, &proj, &err))
@@ -43,9 +44,11 @@ int main(int argc, char** argv)
   uint32_t seq = 0;
   while (ros::ok())
   {
+    // ~distance may be changed while running (the calibration rostest moves the board).
+    pnh.getParamCached("distance", distance);
     sls_test::Scene scene;
-    // The rock breathes slowly between 0.9 and 1.1 times `distance`.
-    scene.distance = distance * (1.0 + 0.1 * std::sin(0.3 * seq));
+    // The rock breathes slowly by +-breathe_fraction around `distance`.
+    scene.distance = distance * (1.0 + breathe * std::sin(0.3 * seq));
     scene.relief = relief;
     scene.phase = 0.1 * seq;
     sls_test::FrameOptions fo;
