@@ -259,12 +259,20 @@ int Triangulator::supportOf(int beam, const std::vector<int>& spot_of_beam,
     return 2;
   // One side only: extrapolate from a plane through the accepted beams
   // within two rows/columns, which needs at least three of them.
+  // Points on one grid line give no plane (its tilt about that line would be
+  // arbitrary): require two rows and two columns.
   support->clear();
+  int row_mask = 0, col_mask = 0;
   for (int rr = std::max(0, r - 2); rr <= std::min(rows - 1, r + 2); ++rr)
     for (int cc = std::max(0, c - 2); cc <= std::min(cols - 1, c + 2); ++cc)
       if ((rr != r || cc != c) && spot_of_beam[rr * cols + cc] >= 0)
+      {
         support->push_back(accepted_point[rr * cols + cc]);
-  return support->size() >= 3 ? 1 : 0;
+        row_mask |= 1 << (rr - r + 2);
+        col_mask |= 1 << (cc - c + 2);
+      }
+  const auto bits = [](int m) { return __builtin_popcount(static_cast<unsigned>(m)); };
+  return support->size() >= 3 && bits(row_mask) >= 2 && bits(col_mask) >= 2 ? 1 : 0;
 }
 
 void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px,
@@ -377,6 +385,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   // used: extrapolating from one side favours whatever reading puts the spot
   // on that side's surface, which an occluding edge turns into a wrong beam
   // (measured: 6 wrong in 60 axis-aligned frames when allowed).
+  bool one_sided = false;
   for (int pass = 0; pass < max_passes; ++pass)
   {
     const bool use_prior = pass > 0 && config_.prediction_tolerance_px > 0.0;
@@ -390,7 +399,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
           continue;
         std::vector<Eigen::Vector3d> support;
         const int level = supportOf(i, spot_of_beam, accepted_point, &support);
-        if (level < 2)
+        if (level < 2 && !(level == 1 && one_sided))
           continue;
         Eigen::Vector2d px;
         if (predictPixel(i, support, &px))
@@ -522,7 +531,13 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
     if (config_.prediction_tolerance_px > 0.0)
       rejectInconsistent(spots_px, contested, &spot_of_beam, &beam_of_spot, &accepted_point);
     if (newly_accepted == 0 && (pass > 0 || config_.prediction_tolerance_px <= 0.0))
-      break;
+    {
+      if (one_sided)
+        break;
+      one_sided = true;
+    }
+    else if (pass > 0)
+      one_sided = false;
   }
   if (ambiguous_out)
     *ambiguous_out = ambiguous;
