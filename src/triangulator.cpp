@@ -219,7 +219,7 @@ bool Triangulator::predictPixel(int beam, const std::vector<Eigen::Vector3d>& su
       cov += (p - centroid) * (p - centroid).transpose();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
     // Collinear supports (smallest two eigenvalues tiny) give no plane.
-    if (es.eigenvalues()(1) > 1e-3 * es.eigenvalues()(2))
+    if (es.eigenvalues()(1) > 1e-2 * es.eigenvalues()(2))
       normal = es.eigenvectors().col(0);
   }
   const double denom = normal.dot(b.direction);
@@ -380,6 +380,126 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
     return triangulateBeam(ray, projector_.beams[beam], p, &gap);
   };
 
+  // Beams of one projector row (or column) share one epipolar line when the
+  // rows are parallel to the baseline: any two of their dots can then be
+  // swapped at no cost and the order-free assignment proves nothing. A
+  // smooth surface keeps the dots in beam order, so the ordered reading
+  // (minimum-cost order-preserving matching, by dynamic programming) is
+  // accepted when every pair of it is unique by the margin among ordered
+  // readings and the depths it gives are smooth along the line. A shifted
+  // reading (a missing end dot) ties and is left to the surface prior.
+  const auto acceptOrderedReading = [&](const std::vector<int>& comp_beams, const std::vector<int>& comp_spots,
+                                        const std::vector<double>& cost, int n, int nb, int ns) -> int {
+    const int cols = projector_.cols;
+    if (comp_beams.size() < 2 || config_.prediction_tolerance_px <= 0.0)
+      return 0;
+    bool same_row = true, same_col = true;
+    for (int i : comp_beams)
+    {
+      same_row &= i / cols == comp_beams[0] / cols;
+      same_col &= i % cols == comp_beams[0] % cols;
+    }
+    if (!same_row && !same_col)
+      return 0;
+    // Local indices sorted along the grid line and along the image line.
+    std::vector<int> ka(nb), la(ns);
+    std::iota(ka.begin(), ka.end(), 0);
+    std::iota(la.begin(), la.end(), 0);
+    std::sort(ka.begin(), ka.end(), [&](int x, int y) { return comp_beams[x] < comp_beams[y]; });
+    const auto mid = [&](int a) { return 0.5 * (segments_[comp_beams[a]].near_px + segments_[comp_beams[a]].far_px); };
+    const Eigen::Vector2d dir = mid(ka.back()) - mid(ka.front());
+    if (!(dir.norm() > 1e-6))
+      return 0;
+    std::sort(la.begin(), la.end(),
+              [&](int x, int y) { return spots_px[comp_spots[x]].dot(dir) < spots_px[comp_spots[y]].dot(dir); });
+    const int m = nb, q = ns;
+    // D[k][l]: best cost of the first k beams and first l spots (in order).
+    const auto solve = [&](int forbid_k, int forbid_l, std::vector<int>* match) {
+      std::vector<double> D((m + 1) * (q + 1), 0.0);
+      std::vector<char> how((m + 1) * (q + 1), 0);
+      for (int k = 0; k <= m; ++k)
+      {
+        for (int l = 0; l <= q; ++l)
+        {
+          if (k == 0 && l == 0)
+            continue;
+          double best = std::numeric_limits<double>::infinity();
+          char h = 0;
+          if (k > 0 && D[(k - 1) * (q + 1) + l] + 1.0 < best)
+          {
+            best = D[(k - 1) * (q + 1) + l] + 1.0;
+            h = 1;
+          }
+          if (l > 0 && D[k * (q + 1) + l - 1] + 1.0 < best)
+          {
+            best = D[k * (q + 1) + l - 1] + 1.0;
+            h = 2;
+          }
+          if (k > 0 && l > 0 && !(k - 1 == forbid_k && l - 1 == forbid_l))
+          {
+            const double c = cost[ka[k - 1] * n + la[l - 1]];
+            if (c < kForbidden && D[(k - 1) * (q + 1) + l - 1] + c < best)
+            {
+              best = D[(k - 1) * (q + 1) + l - 1] + c;
+              h = 3;
+            }
+          }
+          D[k * (q + 1) + l] = best;
+          how[k * (q + 1) + l] = h;
+        }
+      }
+      if (match)
+      {
+        match->assign(m, -1);
+        for (int k = m, l = q; k > 0 || l > 0;)
+        {
+          const char h = how[k * (q + 1) + l];
+          if (h == 3)
+            (*match)[k - 1] = l - 1;
+          k -= (h == 1 || h == 3);
+          l -= (h == 2 || h == 3);
+        }
+      }
+      return D[m * (q + 1) + q];
+    };
+    std::vector<int> match;
+    const double best = solve(-1, -1, &match);
+    int prev = -1;
+    Eigen::Vector3d prev_point = Eigen::Vector3d::Zero();
+    std::vector<std::pair<int, Eigen::Vector3d>> reading;
+    for (int k = 0; k < m; ++k)
+    {
+      if (match[k] < 0)
+        continue;
+      if (solve(k, match[k], nullptr) - best < config_.ambiguity_margin)
+        return 0;
+      const int i = comp_beams[ka[k]], j = comp_spots[la[match[k]]];
+      Eigen::Vector3d p;
+      if (!triangulateCandidate(i, j, &p))
+        return 0;
+      if (prev >= 0)
+      {
+        // Where beam i would be at the depth of the previous dot of the line.
+        const BeamRay& b = projector_.beams[i];
+        const Eigen::Vector2d at_prev = projectUndistorted(b.pointAt((prev_point.z() - b.origin.z()) / b.direction.z()));
+        if ((at_prev - spots_px[j]).norm() > 3.0 * config_.prediction_tolerance_px * (k - prev))
+          return 0;
+      }
+      prev = k;
+      prev_point = p;
+      reading.push_back({k, p});
+    }
+    for (const auto& kp : reading)
+    {
+      const int i = comp_beams[ka[kp.first]], j = comp_spots[la[match[kp.first]]];
+      spot_of_beam[i] = j;
+      beam_of_spot[j] = i;
+      accepted_point[i] = kp.second;
+      contested[i] = 0;
+    }
+    return static_cast<int>(reading.size());
+  };
+
   const int max_passes = 4 + 2 * (projector_.rows + projector_.cols);
   // Only interpolation between accepted neighbours on opposite sides is
   // used: extrapolating from one side favours whatever reading puts the spot
@@ -498,6 +618,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
       }
       std::vector<int> col_of_row;
       const double best = solveAssignment(cost, n, &col_of_row);
+      int component_ambiguous = 0;
       for (int a = 0; a < nb; ++a)
       {
         const int b = col_of_row[a];
@@ -508,7 +629,9 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
         alt[a * n + b] = kForbidden;
         std::vector<int> alt_cols;
         const double alt_best = solveAssignment(alt, n, &alt_cols);
-        if (alt_best - best >= config_.ambiguity_margin)
+        // After pass 0 the prior is the evidence: a beam without one waits
+        // (its rivals' priors alone could make it look unique).
+        if (alt_best - best >= config_.ambiguity_margin && (!use_prior || prior[beams[a]].allFinite()))
         {
           const int i = beams[a], j = spots[b];
           Eigen::Vector3d p;
@@ -523,9 +646,23 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
         }
         else
         {
-          ++pass_ambiguous;
+          ++component_ambiguous;
         }
       }
+      if (component_ambiguous > 0 && pass == 0)
+      {
+        // Pairs accepted above stay; the ordered reading is tried on the
+        // component only when none was (a partly accepted line is left to
+        // the surface prior).
+        bool untouched = true;
+        for (int i : beams)
+          untouched &= spot_of_beam[i] < 0;
+        const int got = untouched ? acceptOrderedReading(beams, spots, cost, n, nb, ns) : 0;
+        newly_accepted += got;
+        if (got > 0)
+          component_ambiguous = 0;
+      }
+      pass_ambiguous += component_ambiguous;
     }
     ambiguous = pass_ambiguous;
     if (config_.prediction_tolerance_px > 0.0)
