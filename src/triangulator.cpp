@@ -307,7 +307,13 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
     // baseline), where only neighbours can confirm it.
     if (support.size() < 3)
     {
-      if (contested[i])
+      // A corner or a sparse spot: the plane through the accepted beams
+      // within two rows and columns may still confirm it.
+      std::vector<Eigen::Vector3d> wide;
+      Eigen::Vector2d px;
+      const bool confirmed = supportOf(i, *spot_of_beam, *accepted_point, &wide) >= 1 && wide.size() >= 3 &&
+                             predictPixel(i, wide, &px) && (px - spots_px[j]).norm() <= tol;
+      if (contested[i] && !confirmed)
         reject.push_back(i);
       continue;
     }
