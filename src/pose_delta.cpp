@@ -576,7 +576,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
     // Rotations are scaled by the scene depth so that both halves are metres.
     const Matrix6d Hs = scale.cwiseInverse().asDiagonal() * H_data * scale.cwiseInverse().asDiagonal();
     // Dynamic size: the fixed 6x6 solver trips a GCC maybe-uninitialized false positive.
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Eigen::MatrixXd(Hs));
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig{Eigen::MatrixXd(Hs)};
     const double min_info = 1.0 / (freeze_sigma * freeze_sigma);
     Eigen::Matrix<double, 6, Eigen::Dynamic> kept(6, 0);
     for (int k = 0; k < 6; ++k)
