@@ -6,7 +6,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include <Eigen/Eigenvalues>
+#include <Eigen/SVD>
 #include <Eigen/LU>
 #include <opencv2/imgproc.hpp>
 
@@ -575,16 +575,18 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
     // then solved again from the initial guess with those directions frozen.
     // Rotations are scaled by the scene depth so that both halves are metres.
     const Matrix6d Hs = scale.cwiseInverse().asDiagonal() * H_data * scale.cwiseInverse().asDiagonal();
-    // Dynamic size: the fixed 6x6 solver trips a GCC maybe-uninitialized false positive.
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig{Eigen::MatrixXd(Hs)};
+    // Hs is symmetric positive semi-definite, so its SVD is its eigen
+    // decomposition (and Jacobi SVD avoids a GCC false positive that the
+    // tridiagonalising eigen solver triggers with -Wall).
+    const Eigen::JacobiSVD<Matrix6d> eig(Hs, Eigen::ComputeFullU);
     const double min_info = 1.0 / (freeze_sigma * freeze_sigma);
     Eigen::Matrix<double, 6, Eigen::Dynamic> kept(6, 0);
     for (int k = 0; k < 6; ++k)
     {
-      if (eig.eigenvalues()[k] >= min_info)
+      if (eig.singularValues()[k] >= min_info)
       {
         kept.conservativeResize(Eigen::NoChange, kept.cols() + 1);
-        kept.col(kept.cols() - 1) = eig.eigenvectors().col(k);
+        kept.col(kept.cols() - 1) = eig.matrixU().col(k);
       }
     }
     if (kept.cols() == 6)
