@@ -72,7 +72,7 @@ class Monitor:
 
     @staticmethod
     def _empty():
-        return {"frames": 0, "dots_found": 0, "dots_visible": 0, "depth_sq": 0.0, "depth_rel_sq": 0.0,
+        return {"published": 0, "frames": 0, "dots_found": 0, "dots_visible": 0, "depth_sq": 0.0, "depth_rel_sq": 0.0,
                 "depth_n": 0, "pose_n": 0, "pose_valid": 0, "trans_sq": 0.0, "rot_sq": 0.0,
                 "latency": []}
 
@@ -90,6 +90,8 @@ class Monitor:
         with self.lock:
             self.gt_pose[msg.header.stamp] = transform_matrix(msg.transform)
             self._trim(self.gt_pose)
+            for acc in (self.window, self.total):
+                acc["published"] += 1
 
     def on_gt_spots(self, msg):
         with self.lock:
@@ -154,7 +156,9 @@ class Monitor:
             return math.sqrt(sq / n) if n else float("nan")
         lat = np.array(acc["latency"]) if acc["latency"] else np.array([float("nan")])
         return {
+            "frames_published": acc["published"],
             "frames": acc["frames"],
+            "frames_dropped": max(0, acc["published"] - acc["pose_n"]),
             "dots_found": acc["dots_found"],
             "dots_visible": acc["dots_visible"],
             "recall": acc["dots_found"] / acc["dots_visible"] if acc["dots_visible"] else float("nan"),
@@ -174,9 +178,9 @@ class Monitor:
             t = self.summary(self.total)
             self.window = self._empty()
         elapsed = (rospy.Time.now() - self.start).to_sec()
-        rospy.loginfo("t=%4.0fs | frames %3d | dots %d/%d | depth RMS %.2f mm (%.3f %%) | "
+        rospy.loginfo("t=%4.0fs | frames %3d (dropped %d) | dots %d/%d | depth RMS %.2f mm (%.3f %%) | "
                       "pose err %.2f mm %.3f deg, valid %3.0f %% | latency %.1f ms",
-                      elapsed, w["frames"], w["dots_found"], w["dots_visible"], w["depth_rms_mm"],
+                      elapsed, w["frames_published"], w["frames_dropped"], w["dots_found"], w["dots_visible"], w["depth_rms_mm"],
                       w["depth_rms_percent"], w["translation_rms_mm"], w["rotation_rms_deg"],
                       100.0 * w["pose_valid_fraction"] if w["pose_messages"] else float("nan"),
                       w["latency_median_ms"])

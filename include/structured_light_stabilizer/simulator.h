@@ -8,6 +8,21 @@
 // p_cur = delta * p_ref (the PoseDelta convention). The camera and the
 // projector form one rigid rig; the rock is fixed in the world. The same
 // config (seed included) gives byte-identical frames.
+//
+// Frames: the rock (world) frame has its z axis along the normal of the
+// rock's mean plane, pointing away from the camera; the surface is the height
+// field z = h(x, y) over |x| <= width/2, |y| <= height/2 (a slab with vertical
+// side walls), and the camera at t = 0 sits on the -z side, its optical axis
+// through the rock origin at `distance_m`.
+//
+// Radiometry (linear sensor, 8-bit counts "DN"): a sunlit Lambertian surface
+// of reflectance rho facing the sun gives rho * LightingConfig::kSunFullScaleDn * sun_level
+// in each channel; a dot's peak radiance on the rock is dot_to_sun_ratio
+// times the sunlit radiance of the same surface at sun_level = 1 (at 1.5 m
+// from the projector, normal incidence, for the default 2 mrad beam), falls
+// with cos(incidence) / distance^2 and is spread in the image by the beam
+// footprint, the defocus blur (DoC / 4 as a Gaussian sigma: the second moment
+// of a uniform disc of diameter DoC), diffraction and the pixel box.
 #pragma once
 
 #include <cstdint>
@@ -51,6 +66,11 @@ struct RockConfig
   double texture_scale_m = 0.02;  // size of the finest albedo features
   double tilt_x_rad = 0.0;        // orientation of the mean plane (0 = facing the camera)
   double tilt_y_rad = 0.0;
+  // Optional straight step along y at x = step_x_m: the side x > step_x_m lies
+  // step_height_m farther from the camera (negative: nearer). For occlusion
+  // and shadow tests; the step is one height-grid cell wide.
+  double step_height_m = 0.0;
+  double step_x_m = 0.0;
   uint32_t seed = 1;
 };
 
@@ -80,16 +100,27 @@ struct SensorConfig
   double aperture_diameter_m = 1.9e-3;
   double read_noise_dn = 1.0;      // std dev in 8-bit counts (0 = off)
   bool shot_noise = true;
-  double full_well_dn_per_electron = 0.01;  // gain: DN per photo-electron
+  // Conversion gain, DN per photo-electron: shot noise variance = signal_dn * gain.
+  // 0.01 = 100 e-/DN, a 25.5 ke- full well over the 8-bit range.
+  double gain_dn_per_electron = 0.01;
+  // Natural vignetting: image irradiance falls as cos^4 of the off-axis angle
+  // (the study's eq. 2.9 factor; 0.45 in the corners of this 53 deg lens).
+  bool natural_vignetting = true;
 };
 
 struct LightingConfig
 {
+  // DN of a white Lambertian surface facing the sun at sun_level = 1 (exposure
+  // 1): the brightest red rock (reflectance 0.45) reaches 230 DN in red.
+  static constexpr double kSunFullScaleDn = 510.0;
+
   // 0 = night, 1 = the study's brightest case (F50 = 341 W/m^2, optimal BRDF).
-  double sun_level = 0.3;
-  // Ratio of a dot's peak radiance to the sunlit radiance of the same
-  // surface at sun_level = 1; from the study's radiometry (scene analysis).
-  double dot_to_sun_ratio = 4.0;
+  double sun_level = 0.5;
+  // Ratio of a dot's peak radiance (green channel) to the sunlit radiance of
+  // the same surface at sun_level = 1. 2.5 puts the study's worst case (sun
+  // level 1, albedo 0.05) at a peak SNR of about 32 with the default noise,
+  // the study's eq. 2.26 lower bound.
+  double dot_to_sun_ratio = 2.5;
   double exposure = 1.0;  // global scale applied before quantisation
 };
 
@@ -109,6 +140,9 @@ struct SimulatorConfig
   RigMotionConfig motion;
   ClutterConfig clutter;
   uint32_t noise_seed = 42;
+  // Keep the noise-free linear radiance (CV_32FC3, DN, before noise, clipping
+  // and quantisation) in SimFrame::linear; for tests.
+  bool keep_linear = false;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;
@@ -122,6 +156,8 @@ struct SimFrame
   std::vector<cv::Point2d> pixels;        // per beam, distorted pixel of the hit point; NaN if not visible
   std::vector<double> blur_sigma_px;      // per beam, Gaussian sigma of the rendered dot
   std::vector<uint8_t> visible;           // per beam, 1 when the dot is in view and unoccluded
+  std::vector<double> peak_dn;            // per beam, noise-free peak of the dot in the green channel (0 if not visible)
+  cv::Mat linear;                         // CV_32FC3 noise-free radiance in DN, only with keep_linear
   Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();  // p_cur = delta * p_ref, ref = t=0
 };
 
@@ -132,6 +168,11 @@ public:
   explicit Simulator(const SimulatorConfig& config);
 
   SimFrame render(double t) const;
+
+  // Replaces the parts of the config that do not change the scene (lighting,
+  // noise, motion, keep_linear) without rebuilding it; for live tuning.
+  // Throws std::invalid_argument when the result would be invalid.
+  void updateLive(const SimulatorConfig& config);
 
   const SimulatorConfig& config() const { return config_; }
   const CameraModel& camera() const { return config_.sensor.camera; }

@@ -1,0 +1,389 @@
+// Tests of the scene simulator against its own geometric ground truth and the
+// study's formulas. Frames are 1024 x 1024 as everywhere in the package.
+#include <cmath>
+#include <iostream>
+
+#include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+
+#include "structured_light_stabilizer/simulator.h"
+
+namespace sls = structured_light_stabilizer;
+
+namespace
+{
+
+// Intensity centroid and second moments of one channel around a point.
+struct Moments
+{
+  double x = 0, y = 0, sxx = 0, syy = 0, sum = 0;
+};
+
+Moments channelMoments(const cv::Mat& img, int channel, const cv::Point2d& c, int half)
+{
+  Moments m;
+  const int u0 = std::max(0, static_cast<int>(std::round(c.x)) - half);
+  const int u1 = std::min(img.cols - 1, static_cast<int>(std::round(c.x)) + half);
+  const int v0 = std::max(0, static_cast<int>(std::round(c.y)) - half);
+  const int v1 = std::min(img.rows - 1, static_cast<int>(std::round(c.y)) + half);
+  double sx = 0, sy = 0, sxx = 0, syy = 0, s = 0;
+  for (int v = v0; v <= v1; ++v)
+    for (int u = u0; u <= u1; ++u)
+    {
+      double w;
+      if (img.depth() == CV_32F)
+        w = img.ptr<float>(v)[3 * u + channel];
+      else
+        w = img.ptr<uint8_t>(v)[3 * u + channel];
+      s += w;
+      sx += w * u;
+      sy += w * v;
+      sxx += w * u * u;
+      syy += w * v * v;
+    }
+  m.sum = s;
+  if (s > 0)
+  {
+    m.x = sx / s;
+    m.y = sy / s;
+    m.sxx = sxx / s - m.x * m.x;
+    m.syy = syy / s - m.y * m.y;
+  }
+  return m;
+}
+
+sls::SimulatorConfig nightNoNoise()
+{
+  sls::SimulatorConfig c;
+  c.lighting.sun_level = 0.0;  // no rock background under the dots
+  c.sensor.read_noise_dn = 0.0;
+  c.sensor.shot_noise = false;
+  c.keep_linear = true;
+  return c;
+}
+
+bool isIdentity(const Eigen::Isometry3d& T, double tol)
+{
+  return (T.matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff() <= tol;
+}
+
+}  // namespace
+
+TEST(Simulator, RejectsInvalidConfig)
+{
+  sls::SimulatorConfig c;
+  c.rock.albedo_min = 0.5;
+  c.rock.albedo_max = 0.2;
+  EXPECT_FALSE(c.validate().empty());
+  EXPECT_THROW(sls::Simulator{c}, std::invalid_argument);
+  c = sls::SimulatorConfig();
+  c.rock.distance_m = -1.0;
+  EXPECT_THROW(sls::Simulator{c}, std::invalid_argument);
+  EXPECT_TRUE(sls::SimulatorConfig().validate().empty());
+}
+
+TEST(Simulator, MotionStartsAtIdentityAndReturnsWithThePeriod)
+{
+  sls::SimulatorConfig c;
+  c.motion.jitter_translation_m = 0.004;
+  c.motion.jitter_rotation_rad = 0.003;
+  c.motion.jitter_frequency_hz = 0.9;
+  c.motion.drift_velocity_mps = Eigen::Vector3d(0.01, -0.005, 0.002);
+  c.motion.drift_angular_velocity_radps = Eigen::Vector3d(0.001, 0.002, -0.001);
+  c.motion.step_period_s = 0.7;
+  c.motion.step_translation_m = Eigen::Vector3d(0.002, 0, 0);
+  c.motion.return_period_s = 2.0;
+  sls::Simulator sim(c);
+  EXPECT_TRUE(isIdentity(sim.motion(0.0), 0.0)) << sim.motion(0.0).matrix();
+  EXPECT_TRUE(isIdentity(sim.render(0.0).delta, 0.0));
+  double worst = 0.0;
+  for (int k = 1; k <= 5; ++k)
+    worst = std::max(worst, (sim.motion(k * 2.0).matrix() - Eigen::Matrix4d::Identity()).cwiseAbs().maxCoeff());
+  std::cout << "[ MEASURE ] |motion(k * return_period) - I|max = " << worst << "\n";
+  EXPECT_LT(worst, 1e-12);
+  // In between it really moves, by about the configured amounts.
+  const Eigen::Isometry3d mid = sim.motion(0.9);
+  EXPECT_GT(mid.translation().norm(), 1e-3);
+  EXPECT_LT(mid.translation().norm(), 0.05);
+
+  // Without a period the drift accumulates linearly.
+  c.motion = sls::RigMotionConfig();
+  c.motion.drift_velocity_mps = Eigen::Vector3d(0.01, 0, 0);
+  sls::Simulator drift(c);
+  // delta = T_cur_ref: the camera moved +x, so rock points move -x in it.
+  EXPECT_NEAR(drift.motion(3.0).translation().x(), -0.03, 1e-12);
+  EXPECT_TRUE(isIdentity(drift.motion(0.0), 0.0));
+  // Camera pose in the rock frame is consistent with delta.
+  const Eigen::Isometry3d lhs = drift.cameraPose(3.0);
+  const Eigen::Isometry3d rhs = drift.cameraPose(0.0) * drift.motion(3.0).inverse();
+  EXPECT_LT((lhs.matrix() - rhs.matrix()).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST(Simulator, HitPointsLieOnTheSurfaceAndOnTheirBeams)
+{
+  for (double relief : {0.0, 0.15, 0.5})
+  {
+    sls::SimulatorConfig c;
+    c.rock.relief_m = relief;
+    c.rock.tilt_x_rad = 0.1;
+    c.motion.jitter_translation_m = 0.01;
+    c.motion.jitter_rotation_rad = 0.01;
+    sls::Simulator sim(c);
+    double worst_surface = 0.0, worst_beam = 0.0, worst_pixel = 0.0;
+    int visible = 0;
+    for (double t : {0.0, 0.37, 1.91})
+    {
+      const sls::SimFrame f = sim.render(t);
+      for (int b = 0; b < sim.projector().beamCount(); ++b)
+      {
+        if (!f.visible[b])
+        {
+          EXPECT_TRUE(std::isnan(f.points[b].x()));
+          continue;
+        }
+        ++visible;
+        const Eigen::Vector3d p_rock = sim.cameraPose(t) * f.points[b];
+        worst_surface = std::max(worst_surface, std::abs(sim.surfaceOffset(p_rock)));
+        const sls::BeamRay& ray = sim.projector().beams[b];
+        const Eigen::Vector3d rel = f.points[b] - ray.origin;
+        worst_beam = std::max(worst_beam, (rel - rel.dot(ray.direction) * ray.direction).norm());
+        const cv::Point2d px = sim.camera().project(f.points[b]);
+        worst_pixel = std::max(worst_pixel, std::hypot(px.x - f.pixels[b].x, px.y - f.pixels[b].y));
+      }
+    }
+    std::cout << "[ MEASURE ] relief " << relief << " m: " << visible
+              << " visible hits, max |surface offset| = " << worst_surface
+              << " m, max distance to beam = " << worst_beam << " m\n";
+    EXPECT_GT(visible, 250);
+    EXPECT_LT(worst_surface, 1e-6);
+    EXPECT_LT(worst_beam, 1e-9);
+    EXPECT_LT(worst_pixel, 1e-9);
+  }
+}
+
+TEST(Simulator, NoiseFreeDotCentroidIsTheProjectedHitPoint)
+{
+  for (bool distorted : {false, true})
+  {
+    sls::SimulatorConfig c = nightNoNoise();
+    c.lighting.dot_to_sun_ratio = 1.5;  // peaks stay below saturation
+    if (distorted)
+    {
+      c.sensor.camera.distortion = sls::DistortionModel::kPlumbBob;
+      c.sensor.camera.D = {-0.15, 0.06, 0.0008, -0.0005, 0.0};
+    }
+    c.motion.jitter_translation_m = 0.005;
+    sls::Simulator sim(c);
+    const sls::SimFrame f = sim.render(0.41);
+    double worst_lin = 0.0, worst_8bit = 0.0, sum2_8bit = 0.0, max_peak = 0.0;
+    int n = 0;
+    for (int b = 0; b < sim.projector().beamCount(); ++b)
+    {
+      if (!f.visible[b])
+        continue;
+      const int half = static_cast<int>(std::ceil(5.0 * f.blur_sigma_px[b])) + 1;
+      const cv::Point2d p = f.pixels[b];
+      if (p.x < half || p.y < half || p.x > 1023 - half || p.y > 1023 - half)
+        continue;
+      const Moments ml = channelMoments(f.linear, 1, p, half);
+      const Moments mq = channelMoments(f.image, 1, p, half);
+      worst_lin = std::max(worst_lin, std::hypot(ml.x - p.x, ml.y - p.y));
+      const double e = std::hypot(mq.x - p.x, mq.y - p.y);
+      worst_8bit = std::max(worst_8bit, e);
+      sum2_8bit += e * e;
+      max_peak = std::max(max_peak, f.peak_dn[b]);
+      ++n;
+    }
+    std::cout << "[ MEASURE ] " << (distorted ? "plumb_bob" : "no distortion") << ": " << n
+              << " dots, centroid error max " << worst_lin << " px (linear), max " << worst_8bit << " px / RMS "
+              << std::sqrt(sum2_8bit / std::max(n, 1)) << " px (8-bit), brightest peak " << max_peak << " DN\n";
+    EXPECT_GT(n, 80);
+    EXPECT_LT(max_peak, 255.0);
+    EXPECT_LT(worst_lin, 0.01);
+    // 8-bit rounding of the tails costs a little more.
+    EXPECT_LT(worst_8bit, 0.03);
+  }
+}
+
+TEST(Simulator, SameSeedGivesIdenticalFramesWhateverTheThreadCount)
+{
+  sls::SimulatorConfig c;
+  c.motion.jitter_translation_m = 0.003;
+  c.clutter.green_specks = 50;
+  c.clutter.olive_minerals = 10;
+  c.clutter.green_blobs = 5;
+  const int threads = cv::getNumThreads();
+  const sls::SimFrame a = sls::Simulator(c).render(0.5);
+  cv::setNumThreads(1);
+  const sls::SimFrame b = sls::Simulator(c).render(0.5);
+  cv::setNumThreads(threads);
+  EXPECT_EQ(cv::norm(a.image, b.image, cv::NORM_INF), 0.0);
+  // Another noise seed, another time, or another rock seed change the frame.
+  sls::SimulatorConfig c2 = c;
+  c2.noise_seed = 7;
+  EXPECT_GT(cv::norm(a.image, sls::Simulator(c2).render(0.5).image, cv::NORM_L1), 0.0);
+  EXPECT_GT(cv::norm(a.image, sls::Simulator(c).render(0.6).image, cv::NORM_L1), 0.0);
+  c2 = c;
+  c2.rock.seed = 99;
+  EXPECT_GT(cv::norm(a.image, sls::Simulator(c2).render(0.5).image, cv::NORM_L1), 0.0);
+}
+
+TEST(Simulator, DefocusFollowsTheDiameterOfConfusion)
+{
+  sls::SimulatorConfig c;
+  sls::Simulator study(c);
+  // Study §2.1.1.4: DoC = 0.0117 mm for the chosen 1.9 mm aperture, at the far
+  // end of the 1-2 m range.
+  std::cout << "[ MEASURE ] DoC(2 m) = " << study.diameterOfConfusion(2.0) * 1e3 << " mm (study 0.0117 mm)\n";
+  EXPECT_NEAR(study.diameterOfConfusion(2.0), 0.0117e-3, 0.0002e-3);
+  EXPECT_EQ(study.diameterOfConfusion(1.0), 0.0);
+
+  // A wide aperture and a pencil beam make the defocus dominate the dot size;
+  // the measured second moment then follows DoC / 4 (uniform disc).
+  c = nightNoNoise();
+  c.sensor.aperture_diameter_m = 0.012;
+  c.projector.beam_sigma_rad = 0.0;
+  c.projector.rows = 3;
+  c.projector.cols = 3;
+  c.projector.pitch_x_rad = c.projector.pitch_y_rad = 0.08;
+  c.rock.relief_m = 0.0;
+  double previous = 0.0;
+  for (double distance : {1.2, 1.5, 2.0})
+  {
+    c.rock.distance_m = distance;
+    c.projector.converge_distance_m = distance;
+    sls::Simulator sim(c);
+    const sls::SimFrame f = sim.render(0.0);
+    const int centre = 4;
+    ASSERT_TRUE(f.visible[centre]);
+    const double z = f.points[centre].z();
+    const double expected = sim.diameterOfConfusion(z) / 4.0 / c.sensor.pixel_size_m;
+    const Moments m = channelMoments(f.linear, 1, f.pixels[centre], 15);
+    // Second moment of the rendered dot minus the pixel box and diffraction
+    // terms (both known, both small).
+    const double diff_px = 0.42 * 520e-9 * (1.0 / (1.0 / c.sensor.focal_length_m - 1.0)) /
+                           c.sensor.aperture_diameter_m / c.sensor.pixel_size_m;
+    const double measured = std::sqrt(0.5 * (m.sxx + m.syy) - 1.0 / 12.0 - diff_px * diff_px);
+    std::cout << "[ MEASURE ] depth " << z << " m: defocus sigma measured " << measured << " px, DoC/4 = " << expected
+              << " px\n";
+    EXPECT_NEAR(measured, expected, 0.03 * expected + 0.01);
+    EXPECT_GT(measured, previous);
+    previous = measured;
+  }
+}
+
+TEST(Simulator, StepOccludesAndShadowsDots)
+{
+  // Two flat planes and a step: analytic first hits to compare with.
+  for (double step : {0.4, -0.4})
+  {
+    sls::SimulatorConfig c = nightNoNoise();
+    c.rock.relief_m = 0.0;
+    c.rock.step_height_m = step;
+    c.rock.step_x_m = step > 0 ? 0.12 : 0.05;
+    c.projector.rows = 1;
+    c.projector.cols = 100;
+    c.projector.pitch_x_rad = 0.0024;
+    c.projector.roll_rad = 0.0;
+    sls::Simulator sim(c);
+    const sls::SimFrame f = sim.render(0.0);
+    const double D = c.rock.distance_m, xs = c.rock.step_x_m, half = 0.5 * std::abs(step);
+    // In the rock frame (no tilt, t = 0) the camera sits at (0, 0, -D).
+    auto depth_at = [&](double x) { return (x > xs) == (step > 0) ? half : -half; };
+    // Camera line of sight to a far-plane point crosses the edge at depth
+    // z_cross; it is blocked when that is inside the near part.
+    int checked = 0, occluded = 0, shadowed = 0;
+    for (int b = 0; b < 100; ++b)
+    {
+      const sls::BeamRay& ray = sim.projector().beams[b];
+      const Eigen::Vector3d o = ray.origin - Eigen::Vector3d(0, 0, D);
+      const Eigen::Vector3d d = ray.direction;
+      // First analytic hit: the near plane if the ray meets it on its side,
+      // else the far plane (or the step face in between).
+      const double near_z = -half, far_z = half;
+      const double x_near = o.x() + (near_z - o.z()) / d.z() * d.x();
+      const double x_far = o.x() + (far_z - o.z()) / d.z() * d.x();
+      const bool near_side_is_right = step < 0;
+      const bool hits_near = near_side_is_right ? x_near > xs : x_near < xs;
+      const bool hits_far = !hits_near && (near_side_is_right ? x_far < xs : x_far > xs);
+      if (std::abs(x_near - xs) < 0.008 || std::abs(x_far - xs) < 0.008)
+        continue;  // within the one-cell ramp of the step
+      Eigen::Vector3d hit;
+      if (hits_near)
+      {
+        hit = o + (near_z - o.z()) / d.z() * d;
+        // Without the near part this beam would have reached the far plane:
+        // it is the near part's edge that shadows that spot.
+        shadowed += near_side_is_right ? x_far < xs : x_far > xs;
+      }
+      else if (hits_far)
+        hit = o + (far_z - o.z()) / d.z() * d;
+      else
+      {
+        continue;  // lands on the step face
+      }
+      // Camera line of sight crosses x = xs at depth z_cross; blocked when
+      // that is inside the near part.
+      // The step is a one-cell (<= 5 mm) ramp: skip beams whose answer
+      // depends on where inside the ramp the edge is.
+      auto blocked_by_edge_at = [&](double edge)
+      {
+        if (std::abs(depth_at(hit.x()) - far_z) > 1e-12 || (hit.x() > edge) == (0.0 > edge))
+          return false;
+        const double z_cross = -D + edge / hit.x() * (hit.z() + D);
+        return z_cross > near_z;
+      };
+      const bool blocked = blocked_by_edge_at(xs);
+      if (blocked != blocked_by_edge_at(xs - 0.005) || blocked != blocked_by_edge_at(xs + 0.005))
+        continue;
+      ++checked;
+      occluded += blocked;
+      EXPECT_EQ(static_cast<bool>(f.visible[b]), !blocked)
+          << "beam " << b << " step " << step << " hit " << hit.transpose() << " pixel " << f.pixels[b];
+      if (f.visible[b])
+      {
+        const Eigen::Vector3d p = sim.cameraPose(0.0) * f.points[b];
+        EXPECT_LT((p - hit).norm(), 1e-6) << "beam " << b << " step " << step;
+      }
+    }
+    std::cout << "[ MEASURE ] step " << step << " m: " << checked << " beams checked, " << occluded
+              << " hidden from the camera, " << shadowed << " caught by the near part's edge\n";
+    EXPECT_GT(checked, 80);
+    if (step > 0)
+      EXPECT_GE(occluded, 3);  // the 3.7 cm band behind the edge
+    else
+      EXPECT_GE(shadowed, 3);  // the shadow band behind the edge
+  }
+}
+
+TEST(Simulator, BrightDotsSaturateToAYellowWhiteCoreOnBrightRock)
+{
+  sls::SimulatorConfig c;
+  c.lighting.sun_level = 1.0;
+  c.projector.power_scale = 4.0;
+  c.rock.albedo_min = 0.40;
+  c.rock.albedo_max = 0.45;
+  sls::Simulator sim(c);
+  const sls::SimFrame f = sim.render(0.0);
+  int saturated = 0, n = 0;
+  for (int b = 0; b < sim.projector().beamCount(); ++b)
+  {
+    if (!f.visible[b])
+      continue;
+    ++n;
+    const cv::Vec3b px =
+        f.image.at<cv::Vec3b>(static_cast<int>(std::round(f.pixels[b].y)), static_cast<int>(std::round(f.pixels[b].x)));
+    if (px[1] == 255 && px[2] >= 250 && px[0] > 150)
+      ++saturated;
+  }
+  std::cout << "[ MEASURE ] " << saturated << " of " << n << " dots with a saturated yellow-white core\n";
+  EXPECT_GT(saturated, n / 2);
+
+  // And the rock itself is reddish (R > G > B) everywhere away from dots.
+  sls::SimulatorConfig d;
+  d.lighting.sun_level = 1.0;
+  const cv::Scalar mean = cv::mean(sls::Simulator(d).render(0.0).image);
+  std::cout << "[ MEASURE ] mean B G R of a sunlit frame: " << mean[0] << " " << mean[1] << " " << mean[2] << "\n";
+  EXPECT_GT(mean[2], mean[1]);
+  EXPECT_GT(mean[1], mean[0]);
+}
