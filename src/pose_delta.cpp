@@ -660,6 +660,17 @@ void PoseDeltaEstimator::requestLock()
   lock_pending_ = true;
 }
 
+void PoseDeltaEstimator::reset(bool lock_on_next_frame)
+{
+  has_reference_ = false;
+  reference_.reset();
+  tracker_->clear();
+  last_estimate_ = Eigen::Isometry3d::Identity();
+  chained_ = Eigen::Isometry3d::Identity();
+  chained_covariance_ = Matrix6d::Zero();
+  lock_pending_ = lock_on_next_frame;
+}
+
 std::string PoseDeltaEstimator::checkMap(const PoseDeltaInput& frame, int* valid_points) const
 {
   *valid_points = 0;
@@ -765,7 +776,12 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
     return result;
   }
 
-  if (lock_pending_ || !has_reference_)
+  if (!lock_pending_ && !has_reference_)
+  {
+    result.status = "no reference locked: call the pose_delta/lock service";
+    return result;
+  }
+  if (lock_pending_)
   {
     BeamSurface probe;
     probe.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);

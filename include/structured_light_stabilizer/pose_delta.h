@@ -183,6 +183,9 @@ public:
 
   // The next frame with a usable map becomes the reference.
   void requestLock();
+  // Forgets the reference; with lock_on_next_frame false nothing is locked
+  // (and every frame reports so) until requestLock().
+  void reset(bool lock_on_next_frame);
   bool hasReference() const { return has_reference_; }
   bool lockPending() const { return lock_pending_; }
 
