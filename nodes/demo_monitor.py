@@ -70,7 +70,10 @@ class Monitor:
         rospy.Subscriber("points", PointCloud2, self.on_points, queue_size=10)
         rospy.Subscriber("pose_delta", PoseDelta, self.on_pose, queue_size=10)
         self.start = rospy.Time.now()
+        self.finished = False
         rospy.Timer(rospy.Duration(1.0), self.report)
+        # Ctrl-C or roslaunch shutting down: keep the figures of the run.
+        rospy.on_shutdown(lambda: None if self.finished else self.write_stats())
 
     @staticmethod
     def _empty():
@@ -204,12 +207,19 @@ class Monitor:
         if self.duration > 0 and elapsed >= self.duration:
             self.finish(t)
 
-    def finish(self, total):
-        rospy.loginfo("demo over after %.0f s: %s", self.duration,
-                      ", ".join("%s=%.4g" % (k, v) for k, v in total.items()))
+    def write_stats(self):
+        with self.lock:
+            total = self.summary(self.total)
         if self.stats_file:
             with open(self.stats_file, "w") as f:
                 yaml.safe_dump({k: float(v) for k, v in total.items()}, f)
+        return total
+
+    def finish(self, _total):
+        total = self.write_stats()
+        rospy.loginfo("demo over after %.0f s: %s", self.duration,
+                      ", ".join("%s=%.4g" % (k, v) for k, v in total.items()))
+        self.finished = True
         rospy.signal_shutdown("duration reached")
 
 
