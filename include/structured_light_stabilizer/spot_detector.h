@@ -20,6 +20,7 @@
 // Not thread-safe per instance (scratch buffers); use one detector per thread.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -192,7 +193,8 @@ private:
   SpotDetectorParams params_;
   // Scratch reused across frames (no per-frame allocation in the hot path).
   cv::Mat blurred_, hsv_, mask_, labels_, stats_, centroids_;
-  cv::Mat score_, coarse_, coarse_mask_, coarse_labels_, coarse_stats_, coarse_centroids_;
+  cv::Mat coarse_, coarse_mask_;
+  std::vector<uint16_t> column_sums_;
   std::vector<Run> runs_;
   std::vector<int> parent_;
 };
