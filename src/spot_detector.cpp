@@ -166,6 +166,7 @@ std::vector<std::string> SpotDetectorParams::sanitize()
   clampDouble(&led_red_ratio, 0.0, 10.0, "led_red_ratio", &changes);
   clampDouble(&led_blue_ratio, 0.0, 10.0, "led_blue_ratio", &changes);
   clampDouble(&max_red_deficit, 0.0, 100.0, "max_red_deficit", &changes);
+  clampDouble(&max_red_excess, 0.0, 100.0, "max_red_excess", &changes);
   clampDouble(&max_chroma_error, 0.0, 100.0, "max_chroma_error", &changes);
   clampInt(&saturation_level, 1, 255, "saturation_level", &changes);
   clampDouble(&min_sigma_fraction, 0.0, 1.0, "min_sigma_fraction", &changes);
@@ -1067,7 +1068,10 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
       // strongest pixel in a small fixed window, whose border then lies on
       // the pedestal and subtracts it.
       Refined retry;
-      if (refineSpot(image, L.step, L.g, red_ch, b.peak_x, b.peak_y, 1.5, 5, p.max_sigma_px, &retry))
+      // Only a real peak on the pedestal counts (amplitude of a Gaussian from
+      // its self-weighted sum: A = sum / (pi sigma^2)).
+      if (refineSpot(image, L.step, L.g, red_ch, b.peak_x, b.peak_y, 1.5, 5, p.max_sigma_px, &retry) &&
+          retry.flux / (M_PI * retry.sigma * retry.sigma) >= p.min_peak)
       {
         r = retry;
         r.on_pedestal = true;
@@ -1094,11 +1098,13 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     {
       chroma(image, L, p.saturation_level, p.led_red_ratio, p.led_blue_ratio, &r);
       // The red test sees the rock texture as much as the spot: off by default.
-      bool red_bad = p.max_red_deficit > 0 && (r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack ||
-                                               r.red_ratio > p.led_red_ratio + p.max_red_deficit + r.red_slack);
+      // Red above the LED's: olive and yellow minerals (R = G) carry their own
+      // red; the slack covers what rock texture alone can add.
+      bool red_bad = p.max_red_excess > 0 && r.red_ratio > p.led_red_ratio + p.max_red_excess + r.red_slack;
+      red_bad = red_bad || (p.max_red_deficit > 0 && r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack);
       // A spot on a pedestal is suspect: the pedestal is often an olive or
       // yellow mineral, whose own red shows up as extra red excess.
-      red_bad = red_bad || (r.on_pedestal && r.red_ratio > p.led_red_ratio + p.max_chroma_error);
+      red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - p.led_red_ratio) > p.max_chroma_error);
       if (!std::isfinite(r.blue_ratio) || red_bad ||
           std::abs(r.blue_ratio - p.led_blue_ratio) > p.max_chroma_error)
       {
