@@ -166,6 +166,7 @@ std::vector<std::string> SpotDetectorParams::sanitize()
   clampDouble(&led_red_ratio, 0.0, 10.0, "led_red_ratio", &changes);
   clampDouble(&led_blue_ratio, 0.0, 10.0, "led_blue_ratio", &changes);
   clampDouble(&max_red_deficit, 0.0, 100.0, "max_red_deficit", &changes);
+  clampDouble(&max_red_excess, 0.0, 100.0, "max_red_excess", &changes);
   clampDouble(&max_chroma_error, 0.0, 100.0, "max_chroma_error", &changes);
   clampInt(&saturation_level, 1, 255, "saturation_level", &changes);
   clampDouble(&min_sigma_fraction, 0.0, 1.0, "min_sigma_fraction", &changes);
@@ -386,10 +387,9 @@ inline cv::v_uint8x16 scaleRed(const cv::v_uint8x16& r, const cv::v_uint16x8& k)
 // without a candidate costs a deinterleaving load, a few multiply/max/
 // saturating-subtract operations and one test, which keeps the whole frame
 // near the memory bandwidth limit. kRedFirst: byte 0 is red (rgb8, rgba8).
-// score_row (may be null) receives every pixel's score, for the coarse pass.
+// acc (may be null) accumulates every pixel's score, for the coarse pass.
 template <int kChannels, bool kRedFirst, typename RunT>
-void rowRuns(const uint8_t* row, int width, int y, int threshold, int k256, std::vector<RunT>* runs,
-             uint8_t* score_row)
+void rowRuns(const uint8_t* row, int width, int y, int threshold, int k256, std::vector<RunT>* runs, uint16_t* acc)
 {
   int x = 0;
 #if CV_SIMD128
@@ -414,8 +414,13 @@ void rowRuns(const uint8_t* row, int width, int y, int threshold, int k256, std:
       const cv::v_uint8x16& b = kRedFirst ? c2 : c0;
       s = c1 - cv::v_max(scaleRed(r, vk), b);  // saturating
     }
-    if (score_row)
-      cv::v_store(score_row + x, s);
+    if (acc)
+    {
+      cv::v_uint16x8 lo, hi;
+      cv::v_expand(s, lo, hi);
+      cv::v_store(acc + x, cv::v_load(acc + x) + lo);
+      cv::v_store(acc + x + 8, cv::v_load(acc + x + 8) + hi);
+    }
     const cv::v_uint8x16 m = s >= vthr;
     if (!cv::v_check_any(m))
       continue;
@@ -430,8 +435,8 @@ void rowRuns(const uint8_t* row, int width, int y, int threshold, int k256, std:
   {
     const uint8_t* px = row + kChannels * x;
     const int score = kChannels == 1 ? int(px[0]) : greenness(px, L, k256);
-    if (score_row)
-      score_row[x] = static_cast<uint8_t>(score);
+    if (acc)
+      acc[x] = static_cast<uint16_t>(acc[x] + score);
     if (score >= threshold)
       markPixel(runs, y, x);
   }
@@ -520,14 +525,16 @@ Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, i
       bx += q.v * q.dx;
       by += q.v * q.dy;
     }
-    const cv::Matx33d A(s11, s1x, s1y, s1x, sxx, sxy, s1y, sxy, syy);
-    cv::Vec3d x;
+    // 3 x 3 symmetric system by Cramer's rule (hot path: no cv::solve overhead).
     Plane p = prev;
-    if (s11 >= 6 && cv::solve(A, cv::Vec3d(b1, bx, by), x, cv::DECOMP_CHOLESKY))
+    const double c00 = sxx * syy - sxy * sxy, c01 = s1y * sxy - s1x * syy, c02 = s1x * sxy - s1y * sxx;
+    const double det = s11 * c00 + s1x * c01 + s1y * c02;
+    if (s11 >= 6 && std::abs(det) > 1e-9)
     {
-      p.a = x[0];
-      p.bx = x[1];
-      p.by = x[2];
+      const double c11 = s11 * syy - s1y * s1y, c12 = s1x * s1y - s11 * sxy, c22 = s11 * sxx - s1x * s1x;
+      p.a = (c00 * b1 + c01 * bx + c02 * by) / det;
+      p.bx = (c01 * b1 + c11 * bx + c12 * by) / det;
+      p.by = (c02 * b1 + c12 * bx + c22 * by) / det;
     }
     return p;
   };
@@ -552,6 +559,22 @@ Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, i
 // real, pixel-integrated, clipped or noisy dots). The window is set by s, not
 // by a threshold, so no pixel enters or leaves it because of noise, and a
 // clipped (saturated) core stays symmetric, hence unbiased.
+// Mean of channel ch on the window's border.
+double borderMean(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, int H)
+{
+  double sum = 0;
+  const uint8_t* top = img.ptr<uint8_t>(cy - H) + (cx - H) * pixel_bytes + ch;
+  const uint8_t* bottom = img.ptr<uint8_t>(cy + H) + (cx - H) * pixel_bytes + ch;
+  for (int d = 0; d <= 2 * H; ++d)
+    sum += top[d * pixel_bytes] + bottom[d * pixel_bytes];
+  for (int dy = -H + 1; dy <= H - 1; ++dy)
+  {
+    const uint8_t* row = img.ptr<uint8_t>(cy + dy) + ch;
+    sum += row[(cx - H) * pixel_bytes] + row[(cx + H) * pixel_bytes];
+  }
+  return sum / (8.0 * H);
+}
+
 // Green-over-red ratio of the rock on the window's border (least squares
 // through the origin); 0 when the border is too dark to tell (night).
 double rockRatio(const cv::Mat& img, int pixel_bytes, int g_ch, int r_ch, int cx, int cy, int H)
@@ -591,8 +614,12 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double 
   double xc = x0, yc = y0, sw = sigma0;
   const int W = img.cols, Hgt = img.rows;
   constexpr int kMaxRadius = 24;
-  float vals[(2 * kMaxRadius + 1) * (2 * kMaxRadius + 1)];
-  double gx[2 * kMaxRadius + 1], gy[2 * kMaxRadius + 1];
+  constexpr int kMaxStride = 52;  // 2 * kMaxRadius + 1 rounded up to 4 lanes
+  // Window values, rows padded with zeros to a multiple of 4 floats.
+  alignas(16) float vals[(2 * kMaxRadius + 1) * kMaxStride];
+  alignas(16) float wx0[kMaxStride], wx1[kMaxStride], wx2[kMaxStride];
+  double gy[2 * kMaxRadius + 1];
+  int stride = 0;
   int cx = -1, cy = -1, H = -1;
   double flux = 0, background = 0;
   bool converged = false;
@@ -613,39 +640,60 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double 
       H = nH;
       const double kappa = red_ch >= 0 ? rockRatio(img, pixel_bytes, ch, red_ch, cx, cy, H) : 0.0;
       const Plane bg = borderPlane(img, pixel_bytes, ch, cx, cy, H, red_ch, kappa);
-      background = borderPlane(img, pixel_bytes, ch, cx, cy, H).a;
-      float* v = vals;
+      background = borderMean(img, pixel_bytes, ch, cx, cy, H);
+      stride = (2 * H + 1 + 3) & ~3;
       for (int dy = -H; dy <= H; ++dy)
       {
         const uint8_t* row = img.ptr<uint8_t>(cy + dy) + (cx - H) * pixel_bytes;
+        float* v = vals + (dy + H) * stride;
         for (int dx = -H; dx <= H; ++dx)
         {
           const uint8_t* px = row + (dx + H) * pixel_bytes;
           const double value = px[ch] - (kappa > 0.0 ? kappa * px[red_ch] : 0.0);
-          *v++ = static_cast<float>(value - bg.at(dx, dy));
+          v[dx + H] = static_cast<float>(value - bg.at(dx, dy));
         }
+        for (int k = 2 * H + 1; k < stride; ++k)
+          v[k] = 0.0f;
       }
     }
+    // Separable Gaussian weight; the x factors carry the moments' powers of x.
     const double inv2s2 = 1.0 / (2.0 * sw * sw);
     for (int d = -H; d <= H; ++d)
     {
       const double ex = cx + d - xc, ey = cy + d - yc;
-      gx[d + H] = std::exp(-ex * ex * inv2s2);
+      const double g = std::exp(-ex * ex * inv2s2);
+      wx0[d + H] = static_cast<float>(g);
+      wx1[d + H] = static_cast<float>(g * ex);
+      wx2[d + H] = static_cast<float>(g * ex * ex);
       gy[d + H] = std::exp(-ey * ey * inv2s2);
     }
+    for (int k = 2 * H + 1; k < stride; ++k)
+      wx0[k] = wx1[k] = wx2[k] = 0.0f;
     double Sw = 0, Sx = 0, Sy = 0, Sxx = 0, Syy = 0;
-    const float* v = vals;
     for (int dy = -H; dy <= H; ++dy)
     {
+      const float* v = vals + (dy + H) * stride;
       double rw = 0, rx = 0, rxx = 0;
-      for (int dx = -H; dx <= H; ++dx)
+#if CV_SIMD128
+      cv::v_float32x4 a0 = cv::v_setzero_f32(), a1 = cv::v_setzero_f32(), a2 = cv::v_setzero_f32();
+      for (int k = 0; k < stride; k += 4)
       {
-        const double d = *v++ * gx[dx + H];
-        const double ex = cx + dx - xc;
-        rw += d;
-        rx += d * ex;
-        rxx += d * ex * ex;
+        const cv::v_float32x4 x = cv::v_load_aligned(v + k);
+        a0 = cv::v_fma(x, cv::v_load_aligned(wx0 + k), a0);
+        a1 = cv::v_fma(x, cv::v_load_aligned(wx1 + k), a1);
+        a2 = cv::v_fma(x, cv::v_load_aligned(wx2 + k), a2);
       }
+      rw = cv::v_reduce_sum(a0);
+      rx = cv::v_reduce_sum(a1);
+      rxx = cv::v_reduce_sum(a2);
+#else
+      for (int k = 0; k < stride; ++k)
+      {
+        rw += v[k] * wx0[k];
+        rx += v[k] * wx1[k];
+        rxx += v[k] * wx2[k];
+      }
+#endif
       const double g = gy[dy + H], ey = cy + dy - yc;
       Sw += rw * g;
       Sx += rx * g;
@@ -673,7 +721,7 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double 
     const double k = step > limit ? limit / step : 1.0;
     xc += k * step_x;
     yc += k * step_y;
-    converged = step < 1e-3 && std::abs(s_new - sw) < 1e-2 * sw;
+    converged = step < 2e-3 && std::abs(s_new - sw) < 2e-2 * sw;
     sw = s_new;
     flux = Sw;
   }
@@ -699,12 +747,75 @@ void chroma(const cv::Mat& img, const Layout& L, int saturation, double led_red,
 {
   const int H = (r->window.width - 1) / 2;
   const int cx = r->window.x + H, cy = r->window.y + H;
-  const double kg = rockRatio(img, L.step, L.g, L.r, cx, cy, H);
-  const double kb = rockRatio(img, L.step, L.b, L.r, cx, cy, H);
-  const Plane pr = borderPlane(img, L.step, L.r, cx, cy, H);
-  const Plane pg = borderPlane(img, L.step, L.g, cx, cy, H);
-  const Plane pd = borderPlane(img, L.step, L.g, cx, cy, H, L.r, kg);
-  const Plane pb = borderPlane(img, L.step, L.b, cx, cy, H, L.r, kb);
+  // One pass over the border ring: least-squares planes of r, g, b (on the
+  // full square ring 1, dx and dy are orthogonal, so each plane is three
+  // sums; a plane of g - k r is the plane of g minus k times that of r) and
+  // the rock's g/r and b/r ratios. Plain, not robust: the colour test only
+  // needs ratios, and this runs for every candidate.
+  double s[3] = {0, 0, 0}, sx[3] = {0, 0, 0}, sy[3] = {0, 0, 0}, sgr = 0, sbr = 0, srr = 0, srr_abs = 0;
+  int n = 0;
+  auto add = [&](int dx, int dy) {
+    const uint8_t* px = img.ptr<uint8_t>(cy + dy) + (cx + dx) * L.step;
+    const double c[3] = {double(px[L.r]), double(px[L.g]), double(px[L.b])};
+    for (int k = 0; k < 3; ++k)
+    {
+      s[k] += c[k];
+      sx[k] += c[k] * dx;
+      sy[k] += c[k] * dy;
+    }
+    sgr += c[1] * c[0];
+    sbr += c[2] * c[0];
+    srr += c[0] * c[0];
+    ++n;
+  };
+  for (int d = -H; d <= H; ++d)
+  {
+    add(d, -H);
+    add(d, H);
+  }
+  for (int d = -H + 1; d <= H - 1; ++d)
+  {
+    add(-H, d);
+    add(H, d);
+  }
+  // Sum of dx^2 over the ring (the same for dy).
+  double sdd = 0;
+  for (int d = -H; d <= H; ++d)
+    sdd += 2.0 * d * d + (std::abs(d) < H ? 2.0 * H * H : 0.0);
+  Plane planes[3];
+  for (int k = 0; k < 3; ++k)
+  {
+    planes[k].a = s[k] / n;
+    planes[k].bx = sx[k] / sdd;
+    planes[k].by = sy[k] / sdd;
+  }
+  const bool sunlit = srr >= 9.0 * n;  // red above ~3 DN: a rock texture to follow
+  const double kg = sunlit ? std::min(1.5, std::max(0.0, sgr / srr)) : 0.0;
+  const double kb = sunlit ? std::min(1.5, std::max(0.0, sbr / srr)) : 0.0;
+  // Spread of red about its plane: how much texture the red ratio carries.
+  for (int d = -H; d <= H; ++d)
+  {
+    for (int e : {-H, H})
+    {
+      const double a = img.ptr<uint8_t>(cy + e)[(cx + d) * L.step + L.r] - planes[0].at(d, e);
+      srr_abs += a * a;
+      if (std::abs(d) < H)
+      {
+        const double b = img.ptr<uint8_t>(cy + d)[(cx + e) * L.step + L.r] - planes[0].at(e, d);
+        srr_abs += b * b;
+      }
+    }
+  }
+  const Plane& pr = planes[0];
+  const Plane& pg = planes[1];
+  Plane pd = planes[1], pb = planes[2];
+  pd.a -= kg * pr.a;
+  pd.bx -= kg * pr.bx;
+  pd.by -= kg * pr.by;
+  pb.a -= kb * pr.a;
+  pb.bx -= kb * pr.bx;
+  pb.by -= kb * pr.by;
+  const double red_spread = std::sqrt(srr_abs / n);
   const double inv2s2 = 1.0 / (2.0 * r->sigma * r->sigma);
   double gx[64], gy[64];
   for (int d = -H; d <= H && d + H < 64; ++d)
@@ -735,7 +846,7 @@ void chroma(const cv::Mat& img, const Layout& L, int saturation, double led_red,
     r->red_ratio = er / eg;
     // Rock texture is spatially correlated over the window, so its effect on
     // the weighted sums scales with the sum of the weights, not its root.
-    r->red_slack = pr.spread * sum_w / eg;
+    r->red_slack = red_spread * sum_w / eg;
     // Mapped back to the LED's blue/green ratio for comparison.
     const double expected = (led_blue - kb * led_red) / std::max(0.1, 1.0 - kg * led_red);
     r->blue_ratio = eb / ed - expected + led_blue;
@@ -762,13 +873,19 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
   runs_.clear();
   const int k256 = static_cast<int>(std::lround(p.red_weight * 256.0));
   const bool red_first = format == PixelFormat::kRgb8 || format == PixelFormat::kRgba8;
-  const bool coarse = p.coarse_threshold > 0 && !mono && image.rows >= 8 && image.cols >= 8;
+  // Coarse pass: 4 x 4 block means of the greenness, accumulated in the same
+  // pass (16-bit column sums over 4 rows, then 4 columns summed).
+  constexpr int kBin = 4;
+  const bool coarse = p.coarse_threshold > 0 && !mono && image.rows >= 2 * kBin && image.cols >= 2 * kBin;
   if (coarse)
-    score_.create(image.rows, image.cols, CV_8UC1);
+  {
+    coarse_.create(image.rows / kBin, image.cols / kBin, CV_8UC1);
+    column_sums_.assign(static_cast<size_t>(image.cols) + 16, 0);
+  }
   for (int y = 0; y < image.rows; ++y)
   {
     const uint8_t* row = image.ptr<uint8_t>(y);
-    uint8_t* score_row = coarse ? score_.ptr<uint8_t>(y) : nullptr;
+    uint16_t* score_row = coarse && y / kBin < coarse_.rows ? column_sums_.data() : nullptr;
     if (L.step == 1)
       rowRuns<1, false>(row, image.cols, y, threshold, k256, &runs_, score_row);
     else if (L.step == 3)
@@ -777,6 +894,14 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     else
       red_first ? rowRuns<4, true>(row, image.cols, y, threshold, k256, &runs_, score_row)
                 : rowRuns<4, false>(row, image.cols, y, threshold, k256, &runs_, score_row);
+    if (score_row && y % kBin == kBin - 1)
+    {
+      uint8_t* out = coarse_.ptr<uint8_t>(y / kBin);
+      uint16_t* a = column_sums_.data();
+      for (int i = 0; i < coarse_.cols; ++i, a += kBin)
+        out[i] = static_cast<uint8_t>((a[0] + a[1] + a[2] + a[3] + kBin * kBin / 2) / (kBin * kBin));
+      std::fill(column_sums_.begin(), column_sums_.end(), 0);
+    }
   }
   tm.threshold_ms = msSince(t);
 
@@ -865,8 +990,6 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
   }
   if (coarse)
   {
-    constexpr int kBin = 4;
-    cv::resize(score_, coarse_, cv::Size(image.cols / kBin, image.rows / kBin), 0, 0, cv::INTER_AREA);
     cv::compare(coarse_, cv::Scalar(p.coarse_threshold), coarse_mask_, cv::CMP_GE);
     // Cells already explained by a full-resolution candidate are skipped.
     for (const Candidate& c : candidates)
@@ -875,20 +998,51 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
                            c.y1 / kBin - c.y0 / kBin + 3);
       coarse_mask_(cells & cv::Rect(0, 0, coarse_mask_.cols, coarse_mask_.rows)).setTo(0);
     }
-    const int nc = cv::connectedComponentsWithStats(coarse_mask_, coarse_labels_, coarse_stats_, coarse_centroids_,
-                                                    8, CV_32S);
+    // 8-connected regions of the (nearly empty) coarse mask by flood fill:
+    // cheaper than a labelling pass that writes a label per cell.
     const size_t full_res = candidates.size();
-    for (int l = 1; l < nc; ++l)
+    std::vector<cv::Point> stack;
+    for (int y = 0; y < coarse_mask_.rows; ++y)
     {
-      const int* st = coarse_stats_.ptr<int>(l);
-      const double cx = (coarse_centroids_.at<double>(l, 0) + 0.5) * kBin - 0.5;
-      const double cy = (coarse_centroids_.at<double>(l, 1) + 0.5) * kBin - 0.5;
-      const double extent = kBin * std::max(st[cv::CC_STAT_WIDTH], st[cv::CC_STAT_HEIGHT]);
-      candidates.push_back({cx, cy, std::min(std::max(0.25 * extent, 1.5), p.max_sigma_px),
-                            st[cv::CC_STAT_AREA] * kBin * kBin, st[cv::CC_STAT_LEFT] * kBin - kBin,
-                            st[cv::CC_STAT_TOP] * kBin - kBin,
-                            (st[cv::CC_STAT_LEFT] + st[cv::CC_STAT_WIDTH] + 1) * kBin,
-                            (st[cv::CC_STAT_TOP] + st[cv::CC_STAT_HEIGHT] + 1) * kBin, -1, -1});
+      uint8_t* row = coarse_mask_.ptr<uint8_t>(y);
+      for (int x = 0; x < coarse_mask_.cols; ++x)
+      {
+        if (!row[x])
+          continue;
+        double sum = 0, sx = 0, sy = 0;
+        int area = 0, x0 = x, x1 = x, y0 = y, y1 = y;
+        stack.assign(1, cv::Point(x, y));
+        row[x] = 0;
+        while (!stack.empty())
+        {
+          const cv::Point q = stack.back();
+          stack.pop_back();
+          const double w = coarse_.at<uint8_t>(q.y, q.x);
+          sum += w;
+          sx += w * q.x;
+          sy += w * q.y;
+          ++area;
+          x0 = std::min(x0, q.x);
+          x1 = std::max(x1, q.x);
+          y0 = std::min(y0, q.y);
+          y1 = std::max(y1, q.y);
+          for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx)
+            {
+              const int nx = q.x + dx, ny = q.y + dy;
+              if (nx >= 0 && ny >= 0 && nx < coarse_mask_.cols && ny < coarse_mask_.rows &&
+                  coarse_mask_.at<uint8_t>(ny, nx))
+              {
+                coarse_mask_.at<uint8_t>(ny, nx) = 0;
+                stack.emplace_back(nx, ny);
+              }
+            }
+        }
+        const double cx = (sx / sum + 0.5) * kBin - 0.5, cy = (sy / sum + 0.5) * kBin - 0.5;
+        const double extent = kBin * std::max(x1 - x0 + 1, y1 - y0 + 1);
+        candidates.push_back({cx, cy, std::min(std::max(0.25 * extent, 1.5), p.max_sigma_px), area * kBin * kBin,
+                              (x0 - 1) * kBin, (y0 - 1) * kBin, (x1 + 2) * kBin, (y1 + 2) * kBin, -1, -1});
+      }
     }
     if (debug)
       debug->coarse_candidates = static_cast<int>(candidates.size() - full_res);
@@ -914,7 +1068,10 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
       // strongest pixel in a small fixed window, whose border then lies on
       // the pedestal and subtracts it.
       Refined retry;
-      if (refineSpot(image, L.step, L.g, red_ch, b.peak_x, b.peak_y, 1.5, 5, p.max_sigma_px, &retry))
+      // Only a real peak on the pedestal counts (amplitude of a Gaussian from
+      // its self-weighted sum: A = sum / (pi sigma^2)).
+      if (refineSpot(image, L.step, L.g, red_ch, b.peak_x, b.peak_y, 1.5, 5, p.max_sigma_px, &retry) &&
+          retry.flux / (M_PI * retry.sigma * retry.sigma) >= p.min_peak)
       {
         r = retry;
         r.on_pedestal = true;
@@ -941,11 +1098,13 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     {
       chroma(image, L, p.saturation_level, p.led_red_ratio, p.led_blue_ratio, &r);
       // The red test sees the rock texture as much as the spot: off by default.
-      bool red_bad = p.max_red_deficit > 0 && (r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack ||
-                                               r.red_ratio > p.led_red_ratio + p.max_red_deficit + r.red_slack);
+      // Red above the LED's: olive and yellow minerals (R = G) carry their own
+      // red; the slack covers what rock texture alone can add.
+      bool red_bad = p.max_red_excess > 0 && r.red_ratio > p.led_red_ratio + p.max_red_excess + r.red_slack;
+      red_bad = red_bad || (p.max_red_deficit > 0 && r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack);
       // A spot on a pedestal is suspect: the pedestal is often an olive or
       // yellow mineral, whose own red shows up as extra red excess.
-      red_bad = red_bad || (r.on_pedestal && r.red_ratio > p.led_red_ratio + p.max_chroma_error);
+      red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - p.led_red_ratio) > p.max_chroma_error);
       if (!std::isfinite(r.blue_ratio) || red_bad ||
           std::abs(r.blue_ratio - p.led_blue_ratio) > p.max_chroma_error)
       {

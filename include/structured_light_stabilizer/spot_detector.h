@@ -20,6 +20,7 @@
 // Not thread-safe per instance (scratch buffers); use one detector per thread.
 #pragma once
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -103,11 +104,15 @@ struct SpotDetectorParams
   // on texture-free signals (green and blue minus the rock's own multiple of
   // red) and rejects olive minerals, grey, white and bluish clutter when the
   // added light's blue/green differs from the LED's by more than
-  // max_chroma_error. The red test (a green mineral replaces red rock, so red
-  // drops where green rises: |red/green - led_red_ratio| > max_red_deficit)
-  // is also hit by rock texture at full sun, so it is off (0) by default.
+  // max_chroma_error. Red is the texture reference, so the red tests carry a
+  // slack for the rock texture around the spot: red/green above
+  // led_red_ratio + max_red_excess (olive, yellow minerals: R = G) rejects;
+  // below led_red_ratio - max_red_deficit (a green mineral replaces red rock,
+  // so red drops where green rises) too, but texture at full sun trips that
+  // one, so it is off (0) by default.
   double led_red_ratio = 0.08;
   double led_blue_ratio = 0.22;
+  double max_red_excess = 0.4;
   double max_red_deficit = 0.0;
   double max_chroma_error = 0.15;
   int saturation_level = 250;
@@ -118,7 +123,7 @@ struct SpotDetectorParams
   // the frame's median (sunlit green minerals are far brighter than the rock
   // around them than a dot is). 0 disables each.
   double min_sigma_fraction = 0.7;
-  double max_sigma_factor = 2.0;
+  double max_sigma_factor = 1.6;
   double max_contrast_factor = 4.0;
   int consistency_min_spots = 8;  // DN; pixels at or above are clipped (excluded from the chroma test)
 
@@ -192,7 +197,8 @@ private:
   SpotDetectorParams params_;
   // Scratch reused across frames (no per-frame allocation in the hot path).
   cv::Mat blurred_, hsv_, mask_, labels_, stats_, centroids_;
-  cv::Mat score_, coarse_, coarse_mask_, coarse_labels_, coarse_stats_, coarse_centroids_;
+  cv::Mat coarse_, coarse_mask_;
+  std::vector<uint16_t> column_sums_;
   std::vector<Run> runs_;
   std::vector<int> parent_;
 };

@@ -141,6 +141,7 @@ private:
     p.max_sigma_px = config.max_sigma_px;
     p.led_red_ratio = config.led_red_ratio;
     p.led_blue_ratio = config.led_blue_ratio;
+    p.max_red_excess = config.max_red_excess;
     p.max_red_deficit = config.max_red_deficit;
     p.max_chroma_error = config.max_chroma_error;
     p.saturation_level = config.saturation_level;
