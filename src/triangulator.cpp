@@ -309,11 +309,14 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
     {
       // A corner or a sparse spot: the plane through the accepted beams
       // within two rows and columns may still confirm it.
+      // A dot with no rival but no wide plane either is kept (1 x N
+      // patterns, isolated dots); a wide plane that disagrees drops it.
       std::vector<Eigen::Vector3d> wide;
       Eigen::Vector2d px;
-      const bool confirmed = supportOf(i, *spot_of_beam, *accepted_point, &wide) >= 1 && wide.size() >= 3 &&
-                             predictPixel(i, wide, &px) && (px - spots_px[j]).norm() <= tol;
-      if (contested[i] && !confirmed)
+      const bool have_plane = supportOf(i, *spot_of_beam, *accepted_point, &wide) >= 1 && wide.size() >= 3 &&
+                              predictPixel(i, wide, &px);
+      const bool confirmed = have_plane && (px - spots_px[j]).norm() <= tol;
+      if ((have_plane && !confirmed) || (contested[i] && !confirmed))
         reject.push_back(i);
       continue;
     }
