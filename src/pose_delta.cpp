@@ -863,6 +863,8 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   result.points_used = reg.points_used;
   result.features_used = reg.features_used;
   result.iterations = reg.iterations;
+  result.sigma_geometry_m = reg.sigma_geometry_m;
+  result.sigma_texture_px = texture.empty() ? 0.0 : reg.sigma_texture_px;
   result.rms_residual_m = reg.rms_geometry_m;
 
   Matrix6d cov = reg.covariance;

@@ -109,7 +109,7 @@ struct PoseDeltaConfig
   // Huber kernel threshold in robust standard deviations (MAD) of each kind of residual.
   double huber_k = 2.0;
   // Floors of the noise scales used to weight geometry against texture.
-  double min_geometry_sigma_m = 0.2e-3;
+  double min_geometry_sigma_m = 0.05e-3;
   double min_texture_sigma_px = 0.05;
   // Weak prior that keeps unobservable directions at the initial guess (the
   // last estimate); its size is what an unobservable axis reports.
@@ -117,16 +117,16 @@ struct PoseDeltaConfig
   double prior_sigma_rotation_rad = 0.05;
   // Validity: every axis' 1-sigma must be within these bounds (an axis beyond
   // them is named unobservable in `status`), and the RMS residual below max.
-  double max_sigma_translation_m = 1.0e-3;
-  double max_sigma_rotation_rad = 0.05 * 3.14159265358979323846 / 180.0;
+  double max_sigma_translation_m = 1.5e-3;
+  double max_sigma_rotation_rad = 0.075 * 3.14159265358979323846 / 180.0;
   double max_rms_residual_m = 5e-3;
   // A direction of the solution whose 1-sigma exceeds freeze_factor times the
   // bounds is not updated (kept at the initial guess, the last estimate).
-  double freeze_factor = 3.0;
+  double freeze_factor = 1.0;
   double max_edge_ratio = 3.0;
 
   // Texture tracking (pyramidal Lucas-Kanade on the red channel, dots masked).
-  int texture_max_features = 200;
+  int texture_max_features = 400;
   double texture_quality = 0.005;
   double texture_min_distance_px = 8.0;
   int texture_window_px = 15;
@@ -159,6 +159,8 @@ struct PoseDeltaResult
   double rms_residual_m = 0.0;
   int points_used = 0;
   int features_used = 0;  // texture constraints in the solution
+  double sigma_geometry_m = 0.0;  // robust scale of the point-to-surface residuals
+  double sigma_texture_px = 0.0;  // robust scale of the texture reprojection residuals
   int iterations = 0;
   bool valid = false;
   bool locked_now = false;             // this frame became the reference
