@@ -564,7 +564,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         break;
       T = applyIncrement(delta, T);
       // Once settled, one more pass evaluates residuals and information at the solution.
-      converged = delta.head<3>().norm() < 1e-9 && delta.tail<3>().norm() < 1e-10;
+      converged = delta.head<3>().norm() < 1e-7 && delta.tail<3>().norm() < 1e-8;  // 0.1 um, 0.01 urad
     }
     if (phase == 1)
       break;
@@ -832,9 +832,12 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
     {
       // Geometry first: on a rough rock it places the features to within a
       // pixel or two, on any surface it fixes distance and tilts.
-      const RegistrationOutput geo =
-          registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
-                            frame.points, {}, 1.0, initial, config_);
+      // Only a prediction: one direction, a few iterations, no second phase.
+      PoseDeltaConfig quick = config_;
+      quick.max_iterations = std::min(config_.max_iterations, 6);
+      quick.freeze_factor = 1e9;
+      const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,
+                                                       frame.points, {}, 1.0, initial, quick);
       if (geo.points_used >= config_.min_points && geo.transform.matrix().allFinite())
         initial = geo.transform;
       const std::vector<Eigen::Vector3d>& X = reference_->features_3d;
@@ -923,18 +926,16 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
     status << "; reference locked on this frame";
   result.status = status.str();
 
-  // The next frame starts from this estimate when it is trustworthy enough
-  // to be a good initial guess.
-  if (enough && residual_ok)
+  // The next frame starts from the last valid estimate: an invalid one may
+  // carry garbage on its weak axes, and a wrong texture prediction does not
+  // recover by itself.
+  if (result.valid)
   {
     if (chained)
     {
-      if (result.valid)
-      {
-        chained_ = estimate;
-        chained_covariance_ = cov;
-        lock(frame);
-      }
+      chained_ = estimate;
+      chained_covariance_ = cov;
+      lock(frame);
     }
     else
       last_estimate_ = reg.transform;

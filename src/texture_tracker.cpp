@@ -140,7 +140,7 @@ int TextureTracker::track(const cv::Mat& image, int channel, const std::vector<c
   std::vector<uchar> status;
   std::vector<float> err;
   cv::calcOpticalFlowPyrLK(reference_pyramid_, pyramid, prev, next, status, err, win, config_.pyramid_levels,
-                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 20, 0.003),
+                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 10, 0.01),
                            cv::OPTFLOW_USE_INITIAL_FLOW);
   const float half = static_cast<float>(config_.window_px / 2 + 1);
   int good = 0;

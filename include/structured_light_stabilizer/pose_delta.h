@@ -129,7 +129,7 @@ struct PoseDeltaConfig
   int texture_max_features = 400;
   double texture_quality = 0.005;
   double texture_min_distance_px = 8.0;
-  int texture_window_px = 15;
+  int texture_window_px = 13;
   int texture_pyramid_levels = 3;
   double texture_dot_clearance_px = 10.0;  // features closer than this to any dot are not used
   int texture_roi_margin_px = 48;          // how far features may move (after prediction)

@@ -114,6 +114,11 @@ TEST(PoseDeltaSim, RoughRockJitter)
   EXPECT_LT(o.rms_t_mm, 1.0);
   EXPECT_LT(o.rms_r_deg, 0.05);
   EXPECT_GE(o.valid_percent, 95.0);
+  // The exact beam hit points, as the rostest feeds sim/ground_truth/points.
+  const Outcome exact = run({"rough rock 0.15 m, exact points, texture on", 0.15, true, 0.0, 20});
+  EXPECT_LT(exact.rms_t_mm, 1.0);
+  EXPECT_LT(exact.rms_r_deg, 0.05);
+  EXPECT_GE(exact.valid_percent, 95.0);
 }
 
 TEST(PoseDeltaSim, FlatTexturedBoardJitter)
