@@ -550,9 +550,10 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
     impl->clutter.push_back({ux(rng), uy(rng), 0.0008 + 0.0012 * u01(rng), {0.10, 0.40, 0.10}, false});
   for (int n = 0; n < cl.olive_minerals; ++n)
   {
-    // Olive / green-brown: R close to G, low saturation, darker than a dot.
+    // Olive / green-brown: R = G > B (hue 60 deg, between the rock's ~20 deg
+    // and a dot's 85-115 deg), half saturated, darker than a dot.
     const double v = 0.10 + 0.08 * u01(rng);
-    impl->clutter.push_back({ux(rng), uy(rng), 0.006 + 0.012 * u01(rng), {0.55 * v, 1.05 * v, 0.90 * v}, true});
+    impl->clutter.push_back({ux(rng), uy(rng), 0.006 + 0.012 * u01(rng), {0.45 * v, 1.0 * v, 1.0 * v}, true});
   }
   for (int n = 0; n < cl.green_blobs; ++n)
     impl->clutter.push_back({ux(rng), uy(rng), 0.0025 + 0.0015 * u01(rng), {0.14, 0.60, 0.08}, false});

@@ -86,6 +86,10 @@ sensor_msgs::PointCloud2Ptr makeBeamCloud(const std_msgs::Header& header, int ro
                                 "z", 1, sensor_msgs::PointField::FLOAT32, "intensity", 1,
                                 sensor_msgs::PointField::FLOAT32, "beam", 1, sensor_msgs::PointField::UINT32);
   modifier.resize(static_cast<size_t>(rows) * cols);
+  // resize() flattens the cloud to one row: restore the organised layout.
+  cloud->height = static_cast<uint32_t>(rows);
+  cloud->width = static_cast<uint32_t>(cols);
+  cloud->row_step = cloud->width * cloud->point_step;
   sensor_msgs::PointCloud2Iterator<float> it_x(*cloud, "x");
   sensor_msgs::PointCloud2Iterator<float> it_i(*cloud, "intensity");
   sensor_msgs::PointCloud2Iterator<uint32_t> it_b(*cloud, "beam");

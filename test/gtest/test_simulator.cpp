@@ -1,10 +1,12 @@
 // Tests of the scene simulator against its own geometric ground truth and the
 // study's formulas. Frames are 1024 x 1024 as everywhere in the package.
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "structured_light_stabilizer/simulator.h"
 
@@ -386,4 +388,79 @@ TEST(Simulator, BrightDotsSaturateToAYellowWhiteCoreOnBrightRock)
   std::cout << "[ MEASURE ] mean B G R of a sunlit frame: " << mean[0] << " " << mean[1] << " " << mean[2] << "\n";
   EXPECT_GT(mean[2], mean[1]);
   EXPECT_GT(mean[1], mean[0]);
+}
+
+TEST(Simulator, StudysWorstCaseGivesAPeakSnrNear32)
+{
+  // Study §2.1.3.5 eq. 2.26: SNR = 32 with the brightest sun on the darkest
+  // rock (albedo 0.05). Here SNR = noise-free dot peak / noise of the sunlit
+  // background, both in the green channel.
+  sls::SimulatorConfig c;
+  c.lighting.sun_level = 1.0;
+  c.rock.albedo_min = c.rock.albedo_max = 0.05;
+  c.rock.relief_m = 0.0;
+  c.keep_linear = true;
+  sls::Simulator sim(c);
+  const sls::SimFrame f = sim.render(0.0);
+  // Noise from the difference between the noisy and the noise-free frame in
+  // a corner without dots.
+  const cv::Rect corner(0, 0, 200, 200);
+  cv::Mat noisy, clean;
+  cv::extractChannel(f.image(corner), noisy, 1);
+  cv::extractChannel(f.linear(corner), clean, 1);
+  noisy.convertTo(noisy, CV_32F);
+  cv::Scalar mean, sd;
+  cv::meanStdDev(noisy - clean, mean, sd);
+  // Peak of the dots near the image centre (no vignetting there).
+  std::vector<double> peaks;
+  for (int b = 0; b < sim.projector().beamCount(); ++b)
+    if (f.visible[b] && std::hypot(f.pixels[b].x - 511.5, f.pixels[b].y - 511.5) < 100)
+      peaks.push_back(f.peak_dn[b]);
+  ASSERT_FALSE(peaks.empty());
+  std::sort(peaks.begin(), peaks.end());
+  const double snr = peaks[peaks.size() / 2] / sd[0];
+  std::cout << "[ MEASURE ] worst case: dot peak " << peaks[peaks.size() / 2] << " DN, background noise " << sd[0]
+            << " DN, SNR " << snr << " (study: 32)\n";
+  EXPECT_GT(snr, 25.0);
+  EXPECT_LT(snr, 40.0);
+}
+
+TEST(Simulator, OliveMineralsDoNotLookLikeDots)
+{
+  // Clutter pixels found as the difference with and without clutter (same
+  // seed, no noise); compared in OpenCV's HSV hue (0-180).
+  for (double sun : {0.3, 1.0})
+  {
+    sls::SimulatorConfig c;
+    c.lighting.sun_level = sun;
+    c.sensor.read_noise_dn = 0.0;
+    c.sensor.shot_noise = false;
+    sls::SimulatorConfig olive = c, nodots = c;
+    olive.clutter.olive_minerals = 80;
+    nodots.projector.power_scale = 0.0;
+    const cv::Mat base = sls::Simulator(c).render(0.0).image;
+    const cv::Mat with_olive = sls::Simulator(olive).render(0.0).image;
+    const cv::Mat without_dots = sls::Simulator(nodots).render(0.0).image;
+    auto changed = [](const cv::Mat& a, const cv::Mat& b, int threshold)
+    {
+      cv::Mat d, g;
+      cv::absdiff(a, b, d);
+      cv::cvtColor(d, g, cv::COLOR_BGR2GRAY);
+      return cv::Mat(g > threshold);
+    };
+    cv::Mat hsv;
+    cv::Scalar dot_mean, dot_sd, olive_mean, olive_sd;
+    cv::cvtColor(base, hsv, cv::COLOR_BGR2HSV);
+    cv::meanStdDev(hsv, dot_mean, dot_sd, changed(base, without_dots, 40));
+    cv::cvtColor(with_olive, hsv, cv::COLOR_BGR2HSV);
+    const cv::Mat olive_mask = changed(with_olive, base, 4);
+    ASSERT_GT(cv::countNonZero(olive_mask), 1000);
+    cv::meanStdDev(hsv, olive_mean, olive_sd, olive_mask);
+    std::cout << "[ MEASURE ] sun " << sun << ": dot cores hue " << dot_mean[0] << " +- " << dot_sd[0] << ", V "
+              << dot_mean[2] << "; olive minerals hue " << olive_mean[0] << " +- " << olive_sd[0] << ", V "
+              << olive_mean[2] << "\n";
+    // One standard deviation of each apart, plus a margin.
+    EXPECT_GT(dot_mean[0] - olive_mean[0], dot_sd[0] + olive_sd[0] + 5.0);
+    EXPECT_LT(olive_mean[2], 0.5 * dot_mean[2]);
+  }
 }
