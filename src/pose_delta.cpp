@@ -341,7 +341,7 @@ bool BeamSurface::intersectRay(const Eigen::Vector3d& direction, Eigen::Vector2d
 // ---------------------------------------------------------------------------
 // Registration
 
-std::string PoseDeltaConfig::validate() const
+std::string PoseDeltaParams::validate() const
 {
   std::ostringstream why;
   if (min_points < 6)
@@ -376,7 +376,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
                                      const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
                                      const std::vector<Eigen::Vector3d>& current,
                                      const std::vector<TextureConstraint>& texture, double focal_px,
-                                     const Eigen::Isometry3d& initial, const PoseDeltaConfig& config)
+                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config)
 {
   RegistrationOutput out;
   out.transform = initial;
@@ -620,14 +620,14 @@ struct PoseDeltaEstimator::Frame
   bool has_image = false;
 };
 
-PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaConfig& config) : tracker_(new TextureTracker)
+PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaParams& config) : tracker_(new TextureTracker)
 {
-  setConfig(config);
+  setParams(config);
 }
 
 PoseDeltaEstimator::~PoseDeltaEstimator() = default;
 
-void PoseDeltaEstimator::setConfig(const PoseDeltaConfig& config)
+void PoseDeltaEstimator::setParams(const PoseDeltaParams& config)
 {
   const std::string why = config.validate();
   if (!why.empty())
@@ -833,7 +833,7 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
       // Geometry first: on a rough rock it places the features to within a
       // pixel or two, on any surface it fixes distance and tilts.
       // Only a prediction: one direction, a few iterations, no second phase.
-      PoseDeltaConfig quick = config_;
+      PoseDeltaParams quick = config_;
       quick.max_iterations = std::min(config_.max_iterations, 6);
       quick.freeze_factor = 1e9;
       const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,

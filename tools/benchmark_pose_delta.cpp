@@ -49,7 +49,7 @@ int main(int argc, char** argv)
       in.image = f.image;
       inputs.push_back(in);
     }
-    PoseDeltaConfig cfg;
+    PoseDeltaParams cfg;
     cfg.use_texture = c.use_texture;
     PoseDeltaEstimator est(cfg);
     est.setCamera(sim.camera());

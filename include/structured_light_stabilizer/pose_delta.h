@@ -98,7 +98,7 @@ enum class PoseDeltaMode
   kFrameToFrame  // against the previous valid frame, deltas chained
 };
 
-struct PoseDeltaConfig
+struct PoseDeltaParams
 {
   PoseDeltaMode mode = PoseDeltaMode::kReference;
   bool use_texture = true;
@@ -173,12 +173,12 @@ class TextureTracker;
 class PoseDeltaEstimator
 {
 public:
-  explicit PoseDeltaEstimator(const PoseDeltaConfig& config = PoseDeltaConfig());
+  explicit PoseDeltaEstimator(const PoseDeltaParams& config = PoseDeltaParams());
   ~PoseDeltaEstimator();
 
   // Throws std::invalid_argument with the reason when the config is unusable.
-  void setConfig(const PoseDeltaConfig& config);
-  const PoseDeltaConfig& config() const { return config_; }
+  void setParams(const PoseDeltaParams& config);
+  const PoseDeltaParams& params() const { return config_; }
 
   // Needed for the texture part; without it the estimator uses geometry only.
   void setCamera(const CameraModel& camera);
@@ -198,7 +198,7 @@ private:
   std::string checkMap(const PoseDeltaInput& frame, int* valid_points) const;
   void lock(const PoseDeltaInput& frame);
 
-  PoseDeltaConfig config_;
+  PoseDeltaParams config_;
   CameraModel camera_;
   bool has_camera_ = false;
   bool has_reference_ = false;
@@ -239,7 +239,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
                                      const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
                                      const std::vector<Eigen::Vector3d>& current,
                                      const std::vector<TextureConstraint>& texture, double focal_px,
-                                     const Eigen::Isometry3d& initial, const PoseDeltaConfig& config);
+                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config);
 
 // Rotation vector <-> rotation, for tests and chaining.
 Eigen::Matrix3d expSO3(const Eigen::Vector3d& w);

@@ -63,7 +63,7 @@ Outcome run(const Scenario& s, double dt = 0.1)
 {
   const SimulatorConfig c = simConfig(s.relief_m);
   const Simulator sim(c);
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   cfg.use_texture = s.use_texture;
   PoseDeltaEstimator est(cfg);
   est.setCamera(sim.camera());
