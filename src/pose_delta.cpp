@@ -341,7 +341,7 @@ bool BeamSurface::intersectRay(const Eigen::Vector3d& direction, Eigen::Vector2d
 // ---------------------------------------------------------------------------
 // Registration
 
-std::string PoseDeltaConfig::validate() const
+std::string PoseDeltaParams::validate() const
 {
   std::ostringstream why;
   if (min_points < 6)
@@ -376,7 +376,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
                                      const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
                                      const std::vector<Eigen::Vector3d>& current,
                                      const std::vector<TextureConstraint>& texture, double focal_px,
-                                     const Eigen::Isometry3d& initial, const PoseDeltaConfig& config)
+                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config)
 {
   RegistrationOutput out;
   out.transform = initial;
@@ -564,7 +564,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         break;
       T = applyIncrement(delta, T);
       // Once settled, one more pass evaluates residuals and information at the solution.
-      converged = delta.head<3>().norm() < 1e-9 && delta.tail<3>().norm() < 1e-10;
+      converged = delta.head<3>().norm() < 1e-7 && delta.tail<3>().norm() < 1e-8;  // 0.1 um, 0.01 urad
     }
     if (phase == 1)
       break;
@@ -620,14 +620,14 @@ struct PoseDeltaEstimator::Frame
   bool has_image = false;
 };
 
-PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaConfig& config) : tracker_(new TextureTracker)
+PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaParams& config) : tracker_(new TextureTracker)
 {
-  setConfig(config);
+  setParams(config);
 }
 
 PoseDeltaEstimator::~PoseDeltaEstimator() = default;
 
-void PoseDeltaEstimator::setConfig(const PoseDeltaConfig& config)
+void PoseDeltaEstimator::setParams(const PoseDeltaParams& config)
 {
   const std::string why = config.validate();
   if (!why.empty())
@@ -832,9 +832,12 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
     {
       // Geometry first: on a rough rock it places the features to within a
       // pixel or two, on any surface it fixes distance and tilts.
-      const RegistrationOutput geo =
-          registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
-                            frame.points, {}, 1.0, initial, config_);
+      // Only a prediction: one direction, a few iterations, no second phase.
+      PoseDeltaParams quick = config_;
+      quick.max_iterations = std::min(config_.max_iterations, 6);
+      quick.freeze_factor = 1e9;
+      const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,
+                                                       frame.points, {}, 1.0, initial, quick);
       if (geo.points_used >= config_.min_points && geo.transform.matrix().allFinite())
         initial = geo.transform;
       const std::vector<Eigen::Vector3d>& X = reference_->features_3d;
@@ -863,6 +866,8 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   result.points_used = reg.points_used;
   result.features_used = reg.features_used;
   result.iterations = reg.iterations;
+  result.sigma_geometry_m = reg.sigma_geometry_m;
+  result.sigma_texture_px = texture.empty() ? 0.0 : reg.sigma_texture_px;
   result.rms_residual_m = reg.rms_geometry_m;
 
   Matrix6d cov = reg.covariance;
@@ -921,18 +926,16 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
     status << "; reference locked on this frame";
   result.status = status.str();
 
-  // The next frame starts from this estimate when it is trustworthy enough
-  // to be a good initial guess.
-  if (enough && residual_ok)
+  // The next frame starts from the last valid estimate: an invalid one may
+  // carry garbage on its weak axes, and a wrong texture prediction does not
+  // recover by itself.
+  if (result.valid)
   {
     if (chained)
     {
-      if (result.valid)
-      {
-        chained_ = estimate;
-        chained_covariance_ = cov;
-        lock(frame);
-      }
+      chained_ = estimate;
+      chained_covariance_ = cov;
+      lock(frame);
     }
     else
       last_estimate_ = reg.transform;

@@ -31,6 +31,18 @@ cv::Mat TextureTracker::channelOf(const cv::Mat& image, int channel, const cv::R
   return out;
 }
 
+cv::Mat TextureTracker::prepare(const cv::Mat& image, int channel, const cv::Rect& roi) const
+{
+  const cv::Mat one = channelOf(image, channel, roi);
+  if (one.empty() || !(config_.smooth_sigma_px > 0.0))
+    return one;
+  // Sensor noise dominates the tracking error on a soft, defocused rock
+  // texture; a light blur removes more noise than signal.
+  cv::Mat smooth;
+  cv::GaussianBlur(one, smooth, cv::Size(0, 0), config_.smooth_sigma_px);
+  return smooth;
+}
+
 void TextureTracker::clear()
 {
   features_.clear();
@@ -62,7 +74,7 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
   for (const cv::Point2f& d : dots)
     cv::circle(mask, cv::Point(cvRound(d.x - feature_region.x), cvRound(d.y - feature_region.y)),
                static_cast<int>(std::ceil(config_.dot_clearance_px)), cv::Scalar(0), cv::FILLED);
-  const cv::Mat roi_image = channelOf(image, channel, roi_);
+  const cv::Mat roi_image = prepare(image, channel, roi_);
   if (roi_image.empty())
   {
     clear();
@@ -109,7 +121,7 @@ int TextureTracker::track(const cv::Mat& image, int channel, const std::vector<c
   ok->assign(n, 0);
   if (n == 0 || image.empty() || image.size() != image_size_ || predicted.size() != n)
     return 0;
-  const cv::Mat roi_image = channelOf(image, channel, roi_);
+  const cv::Mat roi_image = prepare(image, channel, roi_);
   if (roi_image.empty())
     return 0;
 
@@ -128,7 +140,7 @@ int TextureTracker::track(const cv::Mat& image, int channel, const std::vector<c
   std::vector<uchar> status;
   std::vector<float> err;
   cv::calcOpticalFlowPyrLK(reference_pyramid_, pyramid, prev, next, status, err, win, config_.pyramid_levels,
-                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 20, 0.003),
+                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 10, 0.01),
                            cv::OPTFLOW_USE_INITIAL_FLOW);
   const float half = static_cast<float>(config_.window_px / 2 + 1);
   int good = 0;

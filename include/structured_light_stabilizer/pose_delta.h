@@ -98,7 +98,7 @@ enum class PoseDeltaMode
   kFrameToFrame  // against the previous valid frame, deltas chained
 };
 
-struct PoseDeltaConfig
+struct PoseDeltaParams
 {
   PoseDeltaMode mode = PoseDeltaMode::kReference;
   bool use_texture = true;
@@ -109,7 +109,7 @@ struct PoseDeltaConfig
   // Huber kernel threshold in robust standard deviations (MAD) of each kind of residual.
   double huber_k = 2.0;
   // Floors of the noise scales used to weight geometry against texture.
-  double min_geometry_sigma_m = 0.2e-3;
+  double min_geometry_sigma_m = 0.05e-3;
   double min_texture_sigma_px = 0.05;
   // Weak prior that keeps unobservable directions at the initial guess (the
   // last estimate); its size is what an unobservable axis reports.
@@ -117,19 +117,19 @@ struct PoseDeltaConfig
   double prior_sigma_rotation_rad = 0.05;
   // Validity: every axis' 1-sigma must be within these bounds (an axis beyond
   // them is named unobservable in `status`), and the RMS residual below max.
-  double max_sigma_translation_m = 1.0e-3;
-  double max_sigma_rotation_rad = 0.05 * 3.14159265358979323846 / 180.0;
+  double max_sigma_translation_m = 1.5e-3;
+  double max_sigma_rotation_rad = 0.075 * 3.14159265358979323846 / 180.0;
   double max_rms_residual_m = 5e-3;
   // A direction of the solution whose 1-sigma exceeds freeze_factor times the
   // bounds is not updated (kept at the initial guess, the last estimate).
-  double freeze_factor = 3.0;
+  double freeze_factor = 1.0;
   double max_edge_ratio = 3.0;
 
   // Texture tracking (pyramidal Lucas-Kanade on the red channel, dots masked).
-  int texture_max_features = 200;
+  int texture_max_features = 400;
   double texture_quality = 0.005;
   double texture_min_distance_px = 8.0;
-  int texture_window_px = 15;
+  int texture_window_px = 13;
   int texture_pyramid_levels = 3;
   double texture_dot_clearance_px = 10.0;  // features closer than this to any dot are not used
   int texture_roi_margin_px = 48;          // how far features may move (after prediction)
@@ -159,6 +159,8 @@ struct PoseDeltaResult
   double rms_residual_m = 0.0;
   int points_used = 0;
   int features_used = 0;  // texture constraints in the solution
+  double sigma_geometry_m = 0.0;  // robust scale of the point-to-surface residuals
+  double sigma_texture_px = 0.0;  // robust scale of the texture reprojection residuals
   int iterations = 0;
   bool valid = false;
   bool locked_now = false;             // this frame became the reference
@@ -171,12 +173,12 @@ class TextureTracker;
 class PoseDeltaEstimator
 {
 public:
-  explicit PoseDeltaEstimator(const PoseDeltaConfig& config = PoseDeltaConfig());
+  explicit PoseDeltaEstimator(const PoseDeltaParams& config = PoseDeltaParams());
   ~PoseDeltaEstimator();
 
   // Throws std::invalid_argument with the reason when the config is unusable.
-  void setConfig(const PoseDeltaConfig& config);
-  const PoseDeltaConfig& config() const { return config_; }
+  void setParams(const PoseDeltaParams& config);
+  const PoseDeltaParams& params() const { return config_; }
 
   // Needed for the texture part; without it the estimator uses geometry only.
   void setCamera(const CameraModel& camera);
@@ -196,7 +198,7 @@ private:
   std::string checkMap(const PoseDeltaInput& frame, int* valid_points) const;
   void lock(const PoseDeltaInput& frame);
 
-  PoseDeltaConfig config_;
+  PoseDeltaParams config_;
   CameraModel camera_;
   bool has_camera_ = false;
   bool has_reference_ = false;
@@ -237,7 +239,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
                                      const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
                                      const std::vector<Eigen::Vector3d>& current,
                                      const std::vector<TextureConstraint>& texture, double focal_px,
-                                     const Eigen::Isometry3d& initial, const PoseDeltaConfig& config);
+                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config);
 
 // Rotation vector <-> rotation, for tests and chaining.
 Eigen::Matrix3d expSO3(const Eigen::Vector3d& w);

@@ -31,6 +31,7 @@ struct TextureTrackerConfig
   double dot_clearance_px = 10.0;  // minimum distance of a feature from any dot centre
   int roi_margin_px = 48;          // the tracked area is the feature region grown by this
   double max_error = 30.0;         // LK mean absolute patch error (8-bit levels)
+  double smooth_sigma_px = 0.0;    // Gaussian pre-blur of both images (0 = off)
 };
 
 class TextureTracker
@@ -59,6 +60,7 @@ public:
 private:
   // The `roi` part of `image` as one 8-bit channel (a view when possible).
   static cv::Mat channelOf(const cv::Mat& image, int channel, const cv::Rect& roi);
+  cv::Mat prepare(const cv::Mat& image, int channel, const cv::Rect& roi) const;
   bool nearDot(const cv::Point2f& p, const std::vector<cv::Point2f>& dots) const;
 
   TextureTrackerConfig config_;

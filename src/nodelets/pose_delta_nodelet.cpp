@@ -29,7 +29,7 @@
 #include <tf2_ros/transform_broadcaster.h>
 
 #include "structured_light_stabilizer/PoseDelta.h"
-#include "structured_light_stabilizer/PoseDeltaDynamicConfig.h"
+#include "structured_light_stabilizer/PoseDeltaConfig.h"
 #include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/pose_delta.h"
 
@@ -51,7 +51,7 @@ public:
   }
 
 private:
-  using ReconfigureServer = dynamic_reconfigure::Server<PoseDeltaDynamicConfig>;
+  using ReconfigureServer = dynamic_reconfigure::Server<PoseDeltaConfig>;
 
   void onInit() override
   {
@@ -75,7 +75,7 @@ private:
     // and calls back at once with the initial config.
     reconfigure_server_.reset(new ReconfigureServer(reconfigure_mutex_, pnh));
     reconfigure_server_->setCallback(
-        [this](PoseDeltaDynamicConfig& config, uint32_t level) { onReconfigure(config, level); });
+        [this](PoseDeltaConfig& config, uint32_t level) { onReconfigure(config, level); });
 
     updater_.reset(new diagnostic_updater::Updater(nh, pnh, getName()));
     updater_->setHardwareID("none");
@@ -135,7 +135,7 @@ private:
     }
   }
 
-  void onReconfigure(PoseDeltaDynamicConfig& config, uint32_t /*level*/)
+  void onReconfigure(PoseDeltaConfig& config, uint32_t /*level*/)
   {
     if (config.texture_window_px % 2 == 0)
     {
@@ -149,7 +149,7 @@ private:
                    config.texture_min_features, config.texture_max_features, config.texture_max_features);
       config.texture_min_features = config.texture_max_features;
     }
-    PoseDeltaConfig core;
+    PoseDeltaParams core;
     core.mode = config.mode == "frame_to_frame" ? PoseDeltaMode::kFrameToFrame : PoseDeltaMode::kReference;
     if (config.mode != "frame_to_frame" && config.mode != "reference")
     {
@@ -289,7 +289,7 @@ private:
         std::lock_guard<std::mutex> c(config_mutex_);
         if (config_changed_)
         {
-          estimator_.setConfig(config_);
+          estimator_.setParams(config_);
           config_changed_ = false;
         }
       }
@@ -310,7 +310,7 @@ private:
           break;
         }
       }
-      if (image && estimator_.config().use_texture)
+      if (image && estimator_.params().use_texture)
         prepareImage(image, &input);
       const PoseDeltaResult r = estimator_.process(input);
       if (r.locked_now)
@@ -448,7 +448,7 @@ private:
   boost::recursive_mutex reconfigure_mutex_;
   std::unique_ptr<ReconfigureServer> reconfigure_server_;
   std::mutex config_mutex_;
-  PoseDeltaConfig config_;
+  PoseDeltaParams config_;
   bool config_changed_ = false;
   bool use_texture_ = true;
 

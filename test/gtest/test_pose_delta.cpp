@@ -167,7 +167,7 @@ TEST(PoseDelta, RoughRockGeometryBeatsBeamIndexFit)
   const Rock rock;
   const ProjectorCalibration proj = defaultProjector();
   std::mt19937 rng(7);
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   cfg.use_texture = false;
   cfg.freeze_factor = 1e6;
   PoseDeltaEstimator est(cfg);
@@ -237,7 +237,7 @@ TEST(PoseDelta, ReturnsToIdentityAtTheReferencePose)
   const Rock rock;
   const ProjectorCalibration proj = defaultProjector();
   std::mt19937 rng(11);
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   cfg.use_texture = false;
   PoseDeltaEstimator est(cfg);
   est.process(frameOf(beamPoints(rock, proj, Eigen::Isometry3d::Identity())));
@@ -259,7 +259,7 @@ TEST(PoseDelta, FlatBoardWithoutTextureNamesTheUnobservableAxes)
   board.relief = 0.0;
   const ProjectorCalibration proj = defaultProjector();
   std::mt19937 rng(5);
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   cfg.use_texture = false;
   PoseDeltaEstimator est(cfg);
   est.process(frameOf(beamPoints(board, proj, Eigen::Isometry3d::Identity(), 0.5e-3, &rng)));
@@ -295,7 +295,7 @@ TEST(PoseDelta, FlatTexturedBoardWithTexture)
   const ProjectorCalibration proj = defaultProjector();
   const CameraModel cam = CameraModel::studyDesign();
   std::mt19937 rng(9);
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   PoseDeltaEstimator est(cfg);
   est.setCamera(cam);
   {
@@ -327,7 +327,7 @@ TEST(PoseDelta, FrameToFrameChainsTheDeltas)
   const ProjectorCalibration proj = defaultProjector();
   std::mt19937 rng(13);
   const CameraModel cam = CameraModel::studyDesign();
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   cfg.mode = PoseDeltaMode::kFrameToFrame;
   PoseDeltaEstimator est(cfg);
   est.setCamera(cam);
@@ -379,9 +379,9 @@ TEST(PoseDelta, BadInputIsNotValidAndSaysWhy)
   EXPECT_FALSE(est.hasReference());
 
   // Lock, then a cloud of another layout.
-  PoseDeltaConfig cfg;
+  PoseDeltaParams cfg;
   cfg.use_texture = false;
-  est.setConfig(cfg);
+  est.setParams(cfg);
   r = est.process(frameOf(beamPoints(rock, proj, Eigen::Isometry3d::Identity())));
   EXPECT_TRUE(r.valid) << r.status;
   EXPECT_TRUE(est.hasReference());
@@ -412,10 +412,10 @@ TEST(PoseDelta, BadInputIsNotValidAndSaysWhy)
   r = tex.process(frameOf(beamPoints(rock, proj, Eigen::Isometry3d::Identity())));
   EXPECT_NE(r.status.find("no camera_info"), std::string::npos) << r.status;
 
-  EXPECT_THROW(est.setConfig(
+  EXPECT_THROW(est.setParams(
                    []
                    {
-                     PoseDeltaConfig c;
+                     PoseDeltaParams c;
                      c.min_points = 2;
                      return c;
                    }()),
