@@ -11,6 +11,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
+#include <opencv2/core/hal/hal.hpp>
 
 namespace structured_light_stabilizer
 {
@@ -182,6 +183,9 @@ struct Simulator::Impl
   std::vector<float> h, gx, gy;
   std::vector<float> refl;    // B, G, R reflectance per vertex
   std::vector<float> sunlit;  // B, G, R reflectance * (sun cosine + sky) per vertex
+  // Height and sunlit B, G, R interleaved per vertex: what a rock pixel
+  // reads, in one or two cache lines.
+  std::vector<float> hs;
   double hmin = 0.0, hmax = 0.0;
   double lip_x = 0.0, lip_y = 0.0;  // Lipschitz bounds of the bilinear surface
   Eigen::Vector3d sun_dir = Eigen::Vector3d(-0.40, -0.45, -0.80).normalized();  // rock frame, towards the sun
@@ -519,6 +523,14 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
     }
   }
 
+  impl->hs.resize(4 * nv);
+  for (size_t k = 0; k < nv; ++k)
+  {
+    impl->hs[4 * k] = impl->h[k];
+    for (int c = 0; c < 3; ++c)
+      impl->hs[4 * k + 1 + c] = impl->sunlit[3 * k + c];
+  }
+
   const Eigen::Matrix3d R_tilt = (Eigen::AngleAxisd(rc.tilt_x_rad, Eigen::Vector3d::UnitX()) *
                                   Eigen::AngleAxisd(rc.tilt_y_rad, Eigen::Vector3d::UnitY()))
                                      .toRotationMatrix();
@@ -671,34 +683,75 @@ Eigen::Matrix<double, 2, 3> projectionJacobian(const CameraModel& cam, const Eig
   return J;
 }
 
-// Adds an image-space Gaussian of covariance S (px^2) centred at c with
-// per-channel amplitudes amp[3] into a CV_32FC3 image, within +-5 sigma.
-void addGaussian(cv::Mat* img, const cv::Point2d& c, const Eigen::Matrix2d& S, const double amp[3])
+// An image-space Gaussian (inverse covariance a, b, c in px^-2 about the
+// centre cx, cy), cut where q = a dx^2 + 2 b dx dy + c dy^2 exceeds q_max:
+// a projector dot (added) or a clutter patch (blended over the rock).
+struct Splat
+{
+  double cx = 0.0, cy = 0.0;
+  double a = 0.0, b = 0.0, c = 0.0;
+  double q_max = 0.0;
+  int v0 = 0, v1 = -1;    // rows it touches (inclusive)
+  float value[3] = {0.0f, 0.0f, 0.0f};  // B, G, R amplitude (dot) or radiance (patch)
+  bool blend = false;     // patch: out = (1 - w) out + w value
+  bool flat_top = false;  // patch: w = min(1, 2.5 g), a soft-edged disc
+};
+
+// Sets the inverse covariance and the rows of a splat of covariance S (px^2);
+// false when it is degenerate or outside the image.
+bool setSplatShape(Splat* sp, const Eigen::Matrix2d& S, double q_max, int height)
 {
   const double det = S.determinant();
-  if (!(det > 0.0))
-    return;
+  if (!(det > 0.0) || !std::isfinite(sp->cx) || !std::isfinite(sp->cy))
+    return false;
   const Eigen::Matrix2d Si = S.inverse();
-  const double lmax = 0.5 * (S.trace() + std::sqrt(std::max(0.0, S.trace() * S.trace() - 4.0 * det)));
-  const double half = std::ceil(5.0 * std::sqrt(lmax));
-  const int u0 = std::max(0, static_cast<int>(std::floor(c.x - half)));
-  const int u1 = std::min(img->cols - 1, static_cast<int>(std::ceil(c.x + half)));
-  const int v0 = std::max(0, static_cast<int>(std::floor(c.y - half)));
-  const int v1 = std::min(img->rows - 1, static_cast<int>(std::ceil(c.y + half)));
-  for (int v = v0; v <= v1; ++v)
+  sp->a = Si(0, 0);
+  sp->b = Si(0, 1);
+  sp->c = Si(1, 1);
+  sp->q_max = q_max;
+  // The ellipse q <= q_max spans +-sqrt(q_max S_yy) rows.
+  const double half = std::sqrt(q_max * S(1, 1));
+  sp->v0 = static_cast<int>(std::max(0.0, std::ceil(sp->cy - half)));
+  sp->v1 = static_cast<int>(std::min(height - 1.0, std::floor(sp->cy + half)));
+  return sp->v0 <= sp->v1;
+}
+
+// Applies a splat to row v (CV_32FC3 pixels, `width` of them). The pixels of
+// the row inside q <= q_max solve a quadratic; along them exp(-q/2) follows
+// the recurrence g(u+1) = g(u) r(u), r(u+1) = r(u) exp(-a), three exp() per
+// row instead of one per pixel (S always holds the pixel box, so a <= 12 and
+// the factors stay far from under- or overflow).
+void applySplatRow(const Splat& sp, int v, int width, float* row)
+{
+  const double dy = v - sp.cy;
+  const double disc = sp.b * sp.b * dy * dy - sp.a * (sp.c * dy * dy - sp.q_max);
+  if (!(disc >= 0.0))
+    return;
+  const double root = std::sqrt(disc);
+  const double ua = std::max(0.0, std::ceil(sp.cx + (-sp.b * dy - root) / sp.a));
+  const double ub = std::min(width - 1.0, std::floor(sp.cx + (-sp.b * dy + root) / sp.a));
+  if (!(ua <= ub))
+    return;
+  const int u0 = static_cast<int>(ua), u1 = static_cast<int>(ub);
+  const double dx0 = u0 - sp.cx;
+  double g = std::exp(-0.5 * (sp.a * dx0 * dx0 + 2.0 * sp.b * dx0 * dy + sp.c * dy * dy));
+  double r = std::exp(-0.5 * (sp.a * (2.0 * dx0 + 1.0) + 2.0 * sp.b * dy));
+  const double k = std::exp(-sp.a);
+  float* px = row + 3 * u0;
+  if (!sp.blend)
   {
-    float* row = img->ptr<float>(v);
-    const double dy = v - c.y;
-    for (int u = u0; u <= u1; ++u)
-    {
-      const double dx = u - c.x;
-      const double q = Si(0, 0) * dx * dx + 2.0 * Si(0, 1) * dx * dy + Si(1, 1) * dy * dy;
-      if (q > 50.0)
-        continue;
-      const double g = std::exp(-0.5 * q);
+    for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
       for (int ch = 0; ch < 3; ++ch)
-        row[3 * u + ch] += static_cast<float>(amp[ch] * g);
-    }
+        px[ch] += static_cast<float>(sp.value[ch] * g);
+    return;
+  }
+  for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
+  {
+    const double w = sp.flat_top ? std::min(1.0, 2.5 * g) : g;
+    if (w < 1e-3)
+      continue;
+    for (int ch = 0; ch < 3; ++ch)
+      px[ch] = static_cast<float>((1.0 - w) * px[ch] + w * sp.value[ch]);
   }
 }
 
@@ -709,9 +762,10 @@ SimFrame Simulator::render(double t) const
   const Impl& im = *impl_;
   const CameraModel& cam = config_.sensor.camera;
   const LightingConfig& light = config_.lighting;
+  const SensorConfig& sc = config_.sensor;
   const int W = cam.width, H = cam.height;
   const bool lut = !im.ray_lut.empty();
-  const bool vignetting = config_.sensor.natural_vignetting;
+  const bool vignetting = sc.natural_vignetting;
 
   SimFrame frame;
   frame.t = t;
@@ -736,166 +790,6 @@ SimFrame Simulator::render(double t) const
       *y = (v - cam.cy) / cam.fy;
     }
   };
-
-  // --- Rock pixels -------------------------------------------------------
-  cv::Mat lin(H, W, CV_32FC3);
-  const int ncx = (W - 1 + kCoarseStep - 1) / kCoarseStep + 1;
-  const int ncy = (H - 1 + kCoarseStep - 1) / kCoarseStep + 1;
-  std::vector<double> coarse(static_cast<size_t>(ncx) * ncy, kNaN);
-  auto coarse_pos = [&](int i, int n) { return std::min(i * kCoarseStep, n - 1); };
-  // Rows are independent (and the noise below is seeded per row), so the
-  // passes run in parallel with the same result for any thread count.
-  if (sun > 0.0)
-  {
-    cv::parallel_for_(cv::Range(0, ncy),
-                      [&](const cv::Range& range)
-                      {
-                        for (int j = range.start; j < range.end; ++j)
-                        {
-                          for (int i = 0; i < ncx; ++i)
-                          {
-                            double x, y, s;
-                            bool wall;
-                            normalized(coarse_pos(i, W), coarse_pos(j, H), &x, &y);
-                            const Eigen::Vector3d d = R * Eigen::Vector3d(x, y, 1.0);
-                            if (im.cast(o, d, &s, &wall) && !wall)
-                              coarse[static_cast<size_t>(j) * ncx + i] = s;
-                          }
-                        }
-                      });
-  }
-
-  auto shade_pixel = [&](float* out, double hx, double hy, double xn, double yn, bool wall)
-  {
-    float rad[3];
-    im.lookup3(im.sunlit, hx, hy, rad);
-    float scale = static_cast<float>(sun);
-    if (wall)
-      scale *= 0.5f;  // side walls face away from the sun more often than not
-    if (vignetting)
-    {
-      const double q = 1.0 + xn * xn + yn * yn;
-      scale *= static_cast<float>(1.0 / (q * q));
-    }
-    for (int c = 0; c < 3; ++c)
-      out[c] = rad[c] * scale;
-  };
-  auto background = [&](float* out, double xn, double yn)
-  {
-    double scale = sun * (kSkyAmbient + 0.5);
-    if (vignetting)
-    {
-      const double q = 1.0 + xn * xn + yn * yn;
-      scale /= q * q;
-    }
-    for (int c = 0; c < 3; ++c)
-      out[c] = static_cast<float>(kBackgroundBgr[c] * scale);
-  };
-
-  // Fast path, inlined by hand: this loop is most of the frame time.
-  const double ic = 1.0 / im.cell;
-  const float* hg = im.h.data();
-  const float* sl = im.sunlit.data();
-  const int stride = im.nx + 1;
-  auto rock_rows = [&](const cv::Range& range)
-  {
-    for (int v = range.start; v < range.end; ++v)
-    {
-      float* row = lin.ptr<float>(v);
-      const int j = std::min(v / kCoarseStep, ncy - 2);
-      const int v0 = coarse_pos(j, H), v1 = coarse_pos(j + 1, H);
-      const double fy = v1 > v0 ? static_cast<double>(v - v0) / (v1 - v0) : 0.0;
-      for (int u = 0; u < W; ++u)
-      {
-        const int i = std::min(u / kCoarseStep, ncx - 2);
-        const int u0 = coarse_pos(i, W), u1 = coarse_pos(i + 1, W);
-        const double fx = u1 > u0 ? static_cast<double>(u - u0) / (u1 - u0) : 0.0;
-        const double* c0 = &coarse[static_cast<size_t>(j) * ncx + i];
-        const double* c1 = c0 + ncx;
-        double xn, yn;
-        normalized(u, v, &xn, &yn);
-        const double dx = R(0, 0) * xn + R(0, 1) * yn + R(0, 2);
-        const double dy = R(1, 0) * xn + R(1, 1) * yn + R(1, 2);
-        const double dz = R(2, 0) * xn + R(2, 1) * yn + R(2, 2);
-        const double smin = std::min(std::min(c0[0], c0[1]), std::min(c1[0], c1[1]));
-        const double smax = std::max(std::max(c0[0], c0[1]), std::max(c1[0], c1[1]));
-        bool done = false;
-        // NaN corners fail this test: misses and edges take the robust path.
-        if (smax - smin <= kCoarseSpreadM)
-        {
-          double s = (1 - fy) * ((1 - fx) * c0[0] + fx * c0[1]) + fy * ((1 - fx) * c1[0] + fx * c1[1]);
-          // Newton from the interpolated depth; one step is enough almost
-          // everywhere (the next one would move the point by < 1e-4 m), a
-          // large first step asks for more.
-          bool ok = true;
-          for (int n = 0; n < 4; ++n)
-          {
-            const double gxf = (o.x() + s * dx - im.x0) * ic, gyf = (o.y() + s * dy - im.y0) * ic;
-            if (!(gxf >= 0.0 && gyf >= 0.0 && gxf < im.nx && gyf < im.ny))
-            {
-              ok = false;
-              break;
-            }
-            const int ci = static_cast<int>(gxf), cj = static_cast<int>(gyf);
-            const double tx = gxf - ci, ty = gyf - cj;
-            const float* r0 = hg + cj * stride + ci;
-            const double h00 = r0[0], h10 = r0[1], h01 = r0[stride], h11 = r0[stride + 1];
-            const double a = h00 + tx * (h10 - h00), b = h01 + tx * (h11 - h01);
-            const double gap = a + ty * (b - a) - (o.z() + s * dz);
-            const double slope = (((h10 - h00) * (1.0 - ty) + (h11 - h01) * ty) * dx + (b - a) * dy) * ic - dz;
-            if (!(slope < -1e-6) || std::abs(gap) > 0.05)
-            {
-              ok = false;
-              break;
-            }
-            const double step = gap / slope;
-            s -= step;
-            if (std::abs(step) < 5e-4)
-              break;
-            if (n == 3)
-              ok = false;
-          }
-          const double px = o.x() + s * dx, py = o.y() + s * dy;
-          if (ok && im.inside(px, py))
-          {
-            const double gxf = std::min((px - im.x0) * ic, im.nx - 1e-9),
-                         gyf = std::min((py - im.y0) * ic, im.ny - 1e-9);
-            const int ci = static_cast<int>(gxf), cj = static_cast<int>(gyf);
-            const float tx = static_cast<float>(gxf - ci), ty = static_cast<float>(gyf - cj);
-            const float* p00 = sl + 3 * (cj * stride + ci);
-            const float* p01 = p00 + 3 * stride;
-            float scale = static_cast<float>(sun);
-            if (vignetting)
-            {
-              const double q = 1.0 + xn * xn + yn * yn;
-              scale *= static_cast<float>(1.0 / (q * q));
-            }
-            const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
-            const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
-            float* out = row + 3 * u;
-            for (int c = 0; c < 3; ++c)
-              out[c] = w00 * p00[c] + w10 * p00[3 + c] + w01 * p01[c] + w11 * p01[3 + c];
-            done = true;
-          }
-        }
-        if (!done)
-        {
-          double s;
-          bool wall;
-          const Eigen::Vector3d d(dx, dy, dz);
-          if (im.cast(o, d, &s, &wall))
-            shade_pixel(row + 3 * u, o.x() + s * dx, o.y() + s * dy, xn, yn, wall);
-          else
-            background(row + 3 * u, xn, yn);
-        }
-      }
-    }
-  };
-  if (sun > 0.0)
-    cv::parallel_for_(cv::Range(0, H), rock_rows);
-  if (!(sun > 0.0))
-    lin.setTo(cv::Scalar::all(0.0));
-
   auto occluded = [&](const Eigen::Vector3d& X_rock)
   {
     const Eigen::Vector3d d = X_rock - o;
@@ -914,6 +808,11 @@ SimFrame Simulator::render(double t) const
   };
   const double pixel_box_var = 1.0 / 12.0;
 
+  // The frame is rendered row by row in one pass (rock, clutter, dots, noise,
+  // quantisation in a row buffer that stays in cache). Clutter patches and
+  // dots are prepared first as splats, in the order they apply to a pixel.
+  std::vector<Splat> splats;
+
   // --- Clutter (reflectance patches on the rock, lit by the sun) --------
   if (sun > 0.0)
   {
@@ -931,25 +830,17 @@ SimFrame Simulator::render(double t) const
       const Eigen::Matrix3d Ss = item.radius_m * item.radius_m * (Eigen::Matrix3d::Identity() - n * n.transpose());
       const Eigen::Matrix<double, 2, 3> J = projectionJacobian(cam, X);
       const Eigen::Matrix2d S = J * Ss * J.transpose() + pixel_box_var * Eigen::Matrix2d::Identity();
-      const Eigen::Matrix2d Si = S.inverse();
       const double shade = (std::max(0.0, n_rock.dot(im.sun_dir)) + kSkyAmbient) * sun * vignette_at(X);
-      const double half = std::ceil(4.0 * std::sqrt(S.trace()));
-      for (int v = std::max(0, static_cast<int>(p.y - half)); v <= std::min(H - 1, static_cast<int>(p.y + half)); ++v)
-      {
-        float* row = lin.ptr<float>(v);
-        for (int u = std::max(0, static_cast<int>(p.x - half)); u <= std::min(W - 1, static_cast<int>(p.x + half)); ++u)
-        {
-          const double du = u - p.x, dv = v - p.y;
-          const double q = Si(0, 0) * du * du + 2.0 * Si(0, 1) * du * dv + Si(1, 1) * dv * dv;
-          double w = std::exp(-0.5 * q);
-          if (item.flat_top)
-            w = std::min(1.0, 2.5 * w);
-          if (w < 1e-3)
-            continue;
-          for (int c = 0; c < 3; ++c)
-            row[3 * u + c] = static_cast<float>((1.0 - w) * row[3 * u + c] + w * item.refl[c] * shade);
-        }
-      }
+      Splat sp;
+      sp.cx = p.x;
+      sp.cy = p.y;
+      sp.blend = true;
+      sp.flat_top = item.flat_top;
+      for (int c = 0; c < 3; ++c)
+        sp.value[c] = static_cast<float>(item.refl[c] * shade);
+      // Patches end where their weight drops below 1e-3.
+      if (setSplatShape(&sp, S, -2.0 * std::log(item.flat_top ? 1e-3 / 2.5 : 1e-3), H))
+        splats.push_back(sp);
     }
   }
 
@@ -960,7 +851,6 @@ SimFrame Simulator::render(double t) const
   frame.blur_sigma_px.assign(nb, kNaN);
   frame.visible.assign(nb, 0);
   frame.peak_dn.assign(nb, 0.0);
-  const SensorConfig& sc = config_.sensor;
   // Diffraction: Gaussian approximation of the Airy core, sigma = 0.42 lambda N
   // with the working f-number N = image distance / aperture.
   const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
@@ -1013,41 +903,245 @@ SimFrame Simulator::render(double t) const
     const double peak = energy / (2.0 * kPi * std::sqrt(S.determinant()));
     frame.peak_dn[b] = peak;
     frame.blur_sigma_px[b] = std::sqrt(0.5 * S.trace());
-    const double amp[3] = {peak * kDotResponseBgr[0], peak * kDotResponseBgr[1], peak * kDotResponseBgr[2]};
-    addGaussian(&lin, p, S, amp);
+    Splat sp;
+    sp.cx = p.x;
+    sp.cy = p.y;
+    for (int c = 0; c < 3; ++c)
+      sp.value[c] = static_cast<float>(peak * kDotResponseBgr[c]);
+    if (peak > 0.0 && setSplatShape(&sp, S, 50.0, H))  // exp(-25): below any DN
+      splats.push_back(sp);
   }
 
-  // --- Noise and quantisation ---------------------------------------------
-  if (config_.keep_linear)
-    frame.linear = lin.clone();
-  const std::vector<float>& table = normalTable();
-  const float read_var = static_cast<float>(sc.read_noise_dn * sc.read_noise_dn);
-  const float gain = sc.shot_noise ? static_cast<float>(sc.gain_dn_per_electron) : 0.0f;
-  if (read_var > 0.0f || gain > 0.0f)
+  // Splats per band of rows, in order.
+  constexpr int kBand = 16;
+  std::vector<std::vector<int>> band_splats((H + kBand - 1) / kBand);
+  for (size_t k = 0; k < splats.size(); ++k)
+    for (int band = splats[k].v0 / kBand; band <= splats[k].v1 / kBand; ++band)
+      band_splats[band].push_back(static_cast<int>(k));
+
+  // --- Rock: robust ray casts on a coarse pixel lattice --------------------
+  const int ncx = (W - 1 + kCoarseStep - 1) / kCoarseStep + 1;
+  const int ncy = (H - 1 + kCoarseStep - 1) / kCoarseStep + 1;
+  const bool lattice = ncx >= 2 && ncy >= 2;
+  std::vector<double> coarse(static_cast<size_t>(ncx) * ncy, kNaN);
+  auto coarse_pos = [&](int i, int n) { return std::min(i * kCoarseStep, n - 1); };
+  if (sun > 0.0 && lattice)
   {
-    uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(config_.noise_seed) << 32) ^ doubleBits(t);
-    const uint64_t frame_key = splitmix64(&frame_state);
-    cv::parallel_for_(cv::Range(0, H),
+    cv::parallel_for_(cv::Range(0, ncy),
                       [&](const cv::Range& range)
                       {
-                        for (int v = range.start; v < range.end; ++v)
+                        for (int j = range.start; j < range.end; ++j)
                         {
-                          uint64_t state = frame_key ^ (0xD1B54A32D192ED03ull * static_cast<uint64_t>(v + 1));
-                          float* px = lin.ptr<float>(v);
-                          for (int u = 0; u < 3 * W; u += 3)
+                          for (int i = 0; i < ncx; ++i)
                           {
-                            const uint64_t r = splitmix64(&state);
-                            for (int c = 0; c < 3; ++c)
-                            {
-                              const float x = std::max(px[u + c], 0.0f);
-                              px[u + c] = x + std::sqrt(x * gain + read_var) * table[(r >> (16 * c)) & 0xFFFF];
-                            }
+                            double x, y, s;
+                            bool wall;
+                            normalized(coarse_pos(i, W), coarse_pos(j, H), &x, &y);
+                            const Eigen::Vector3d d = R * Eigen::Vector3d(x, y, 1.0);
+                            if (im.cast(o, d, &s, &wall) && !wall)
+                              coarse[static_cast<size_t>(j) * ncx + i] = s;
                           }
                         }
                       });
   }
-  // Rounding and clipping to 8 bits, vectorised by OpenCV.
-  lin.convertTo(frame.image, CV_8UC3);
+
+  // Robust path of one pixel: its own ray cast, in double.
+  auto robust_pixel = [&](int u, int v, float* out)
+  {
+    double xn, yn;
+    normalized(u, v, &xn, &yn);
+    const Eigen::Vector3d d = R * Eigen::Vector3d(xn, yn, 1.0);
+    double scale = sun;
+    if (vignetting)
+    {
+      const double q = 1.0 + xn * xn + yn * yn;
+      scale /= q * q;
+    }
+    double s;
+    bool wall;
+    if (im.cast(o, d, &s, &wall))
+    {
+      float rad[3];
+      im.lookup3(im.sunlit, o.x() + s * d.x(), o.y() + s * d.y(), rad);
+      if (wall)
+        scale *= 0.5;  // side walls face away from the sun more often than not
+      for (int c = 0; c < 3; ++c)
+        out[c] = static_cast<float>(rad[c] * scale);
+    }
+    else
+    {
+      for (int c = 0; c < 3; ++c)
+        out[c] = static_cast<float>(kBackgroundBgr[c] * (kSkyAmbient + 0.5) * scale);
+    }
+  };
+
+  // Fast path: the depth interpolated in a lattice cell whose corners agree,
+  // refined by Newton on the bilinear height field, in float (1e-7 m is far
+  // below the 4 mm texture cell); everything else takes the robust path.
+  const float Rf[9] = {static_cast<float>(R(0, 0)), static_cast<float>(R(0, 1)), static_cast<float>(R(0, 2)),
+                       static_cast<float>(R(1, 0)), static_cast<float>(R(1, 1)), static_cast<float>(R(1, 2)),
+                       static_cast<float>(R(2, 0)), static_cast<float>(R(2, 1)), static_cast<float>(R(2, 2))};
+  const float ox = static_cast<float>(o.x()), oy = static_cast<float>(o.y()), oz = static_cast<float>(o.z());
+  const float ic = static_cast<float>(1.0 / im.cell);
+  const float gx0 = static_cast<float>(im.x0), gy0 = static_cast<float>(im.y0);
+  const float nxf = static_cast<float>(im.nx), nyf = static_cast<float>(im.ny);
+  const float half_w = static_cast<float>(im.half_w), half_h = static_cast<float>(im.half_h);
+  const float sunf = static_cast<float>(sun);
+  const float ifx = static_cast<float>(1.0 / cam.fx), fcx = static_cast<float>(cam.cx);
+  const float* hs = im.hs.data();
+  const int stride = im.nx + 1;
+  auto rock_row = [&](int v, float* row)
+  {
+    if (!lattice)
+    {
+      for (int u = 0; u < W; ++u)
+        robust_pixel(u, v, row + 3 * u);
+      return;
+    }
+    const int j = std::min(v / kCoarseStep, ncy - 2);
+    const int cv0 = coarse_pos(j, H), cv1 = coarse_pos(j + 1, H);
+    const double fy = cv1 > cv0 ? static_cast<double>(v - cv0) / (cv1 - cv0) : 0.0;
+    const float yn_row = static_cast<float>((v - cam.cy) / cam.fy);
+    const float* lut_row = lut ? &im.ray_lut[2 * static_cast<size_t>(v) * W] : nullptr;
+    for (int i = 0; i + 1 < ncx; ++i)
+    {
+      const int u0 = coarse_pos(i, W), u1 = coarse_pos(i + 1, W);
+      const int uend = i + 2 == ncx ? u1 : u1 - 1;
+      const double* c0 = &coarse[static_cast<size_t>(j) * ncx + i];
+      const double* c1 = c0 + ncx;
+      const double smin = std::min(std::min(c0[0], c0[1]), std::min(c1[0], c1[1]));
+      const double smax = std::max(std::max(c0[0], c0[1]), std::max(c1[0], c1[1]));
+      // NaN corners fail this test: misses and edges take the robust path.
+      if (!(smax - smin <= kCoarseSpreadM))
+      {
+        for (int u = u0; u <= uend; ++u)
+          robust_pixel(u, v, row + 3 * u);
+        continue;
+      }
+      const float sa = static_cast<float>(c0[0] + fy * (c1[0] - c0[0]));
+      const float sd = static_cast<float>(c0[1] + fy * (c1[1] - c0[1])) - sa;
+      const float inv_len = u1 > u0 ? 1.0f / static_cast<float>(u1 - u0) : 0.0f;
+      for (int u = u0; u <= uend; ++u)
+      {
+        const float xn = lut ? lut_row[2 * u] : (static_cast<float>(u) - fcx) * ifx;
+        const float yn = lut ? lut_row[2 * u + 1] : yn_row;
+        const float dx = Rf[0] * xn + Rf[1] * yn + Rf[2];
+        const float dy = Rf[3] * xn + Rf[4] * yn + Rf[5];
+        const float dz = Rf[6] * xn + Rf[7] * yn + Rf[8];
+        float s = sa + static_cast<float>(u - u0) * inv_len * sd;
+        // One Newton step is enough almost everywhere (the next would move
+        // the point by < 1e-4 m); a large first step asks for more.
+        bool ok = true;
+        for (int n = 0; n < 4; ++n)
+        {
+          const float gxf = (ox + s * dx - gx0) * ic, gyf = (oy + s * dy - gy0) * ic;
+          if (!(gxf >= 0.0f && gyf >= 0.0f && gxf < nxf && gyf < nyf))
+          {
+            ok = false;
+            break;
+          }
+          const int ci = static_cast<int>(gxf), cj = static_cast<int>(gyf);
+          const float tx = gxf - ci, ty = gyf - cj;
+          const float* r0 = hs + 4 * (cj * stride + ci);
+          const float* r1 = r0 + 4 * stride;
+          const float h00 = r0[0], h10 = r0[4], h01 = r1[0], h11 = r1[4];
+          const float a = h00 + tx * (h10 - h00), b = h01 + tx * (h11 - h01);
+          const float gap = a + ty * (b - a) - (oz + s * dz);
+          const float slope = (((h10 - h00) * (1.0f - ty) + (h11 - h01) * ty) * dx + (b - a) * dy) * ic - dz;
+          if (!(slope < -1e-6f) || std::abs(gap) > 0.05f)
+          {
+            ok = false;
+            break;
+          }
+          const float step = gap / slope;
+          s -= step;
+          if (std::abs(step) < 5e-4f)
+            break;
+          if (n == 3)
+            ok = false;
+        }
+        const float px = ox + s * dx, py = oy + s * dy;
+        if (!ok || !(std::abs(px) <= half_w && std::abs(py) <= half_h))
+        {
+          robust_pixel(u, v, row + 3 * u);
+          continue;
+        }
+        const float gxf = (px - gx0) * ic, gyf = (py - gy0) * ic;
+        const int ci = std::min(std::max(static_cast<int>(gxf), 0), im.nx - 1);
+        const int cj = std::min(std::max(static_cast<int>(gyf), 0), im.ny - 1);
+        const float tx = gxf - ci, ty = gyf - cj;
+        float scale = sunf;
+        if (vignetting)
+        {
+          const float q = 1.0f + xn * xn + yn * yn;
+          scale /= q * q;
+        }
+        const float* p00 = hs + 4 * (cj * stride + ci) + 1;
+        const float* p01 = p00 + 4 * stride;
+        const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
+        const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
+        float* out = row + 3 * u;
+        for (int c = 0; c < 3; ++c)
+          out[c] = w00 * p00[c] + w10 * p00[4 + c] + w01 * p01[c] + w11 * p01[4 + c];
+      }
+    }
+  };
+
+  // --- One pass per row: rock, splats, noise, quantisation ----------------
+  // Rows are independent (the noise is seeded per row), so the pass runs in
+  // parallel with the same result for any thread count.
+  const std::vector<float>& table = normalTable();
+  const float read_var = static_cast<float>(sc.read_noise_dn * sc.read_noise_dn);
+  const float gain = sc.shot_noise ? static_cast<float>(sc.gain_dn_per_electron) : 0.0f;
+  const bool noisy = read_var > 0.0f || gain > 0.0f;
+  uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(config_.noise_seed) << 32) ^ doubleBits(t);
+  const uint64_t frame_key = splitmix64(&frame_state);
+  if (config_.keep_linear)
+    frame.linear.create(H, W, CV_32FC3);
+  frame.image.create(H, W, CV_8UC3);
+  cv::parallel_for_(cv::Range(0, H),
+                    [&](const cv::Range& range)
+                    {
+                      std::vector<float> buf(3 * static_cast<size_t>(W)), normal(3 * static_cast<size_t>(W)),
+                          deviation(3 * static_cast<size_t>(W));
+                      float* L = buf.data();
+                      float* N = normal.data();
+                      float* sd = deviation.data();
+                      const int n3 = 3 * W;
+                      for (int v = range.start; v < range.end; ++v)
+                      {
+                        if (sun > 0.0)
+                          rock_row(v, L);
+                        else
+                          std::fill(buf.begin(), buf.end(), 0.0f);
+                        for (int k : band_splats[v / kBand])
+                          if (v >= splats[k].v0 && v <= splats[k].v1)
+                            applySplatRow(splats[k], v, W, L);
+                        if (config_.keep_linear)
+                          std::memcpy(frame.linear.ptr<float>(v), L, sizeof(float) * n3);
+                        if (noisy)
+                        {
+                          uint64_t state = frame_key ^ (0xD1B54A32D192ED03ull * static_cast<uint64_t>(v + 1));
+                          for (int k = 0; k < n3; k += 3)
+                          {
+                            const uint64_t r = splitmix64(&state);
+                            N[k] = table[r & 0xFFFF];
+                            N[k + 1] = table[(r >> 16) & 0xFFFF];
+                            N[k + 2] = table[(r >> 32) & 0xFFFF];
+                          }
+                          // Simple loops that vectorise: clip, standard
+                          // deviation (shot + read), the noisy value.
+                          for (int k = 0; k < n3; ++k)
+                            L[k] = std::max(L[k], 0.0f);
+                          for (int k = 0; k < n3; ++k)
+                            sd[k] = L[k] * gain + read_var;
+                          cv::hal::sqrt32f(sd, sd, n3);
+                          for (int k = 0; k < n3; ++k)
+                            L[k] += sd[k] * N[k];
+                        }
+                        cv::Mat(1, n3, CV_32F, L).convertTo(cv::Mat(1, n3, CV_8U, frame.image.ptr<uint8_t>(v)), CV_8U);
+                      }
+                    });
   return frame;
 }
 
