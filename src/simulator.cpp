@@ -1024,21 +1024,31 @@ SimFrame Simulator::render(double t) const
   // Fast path: the depth interpolated in a lattice cell whose corners agree,
   // refined by Newton on the bilinear height field, in float (1e-7 m is far
   // below the 4 mm texture cell); everything else takes the robust path.
-  const float Rf[9] = {static_cast<float>(R(0, 0)), static_cast<float>(R(0, 1)), static_cast<float>(R(0, 2)),
-                       static_cast<float>(R(1, 0)), static_cast<float>(R(1, 1)), static_cast<float>(R(1, 2)),
-                       static_cast<float>(R(2, 0)), static_cast<float>(R(2, 1)), static_cast<float>(R(2, 2))};
-  const float ox = static_cast<float>(o.x()), oy = static_cast<float>(o.y()), oz = static_cast<float>(o.z());
-  const float ic = static_cast<float>(1.0 / im.cell);
-  const float gx0 = static_cast<float>(im.x0), gy0 = static_cast<float>(im.y0);
-  const float nxf = static_cast<float>(im.nx), nyf = static_cast<float>(im.ny);
-  const float half_w = static_cast<float>(im.half_w), half_h = static_cast<float>(im.half_h);
-  const float sunf = static_cast<float>(sun);
-  const float ifx = static_cast<float>(im.sub / cam.fx);
-  const float fcx = static_cast<float>((cam.cx - sample_offset) / im.sub);
-  const float* hs = im.hs.data();
-  const int stride = im.nx + 1;
-  auto rock_row = [&](int v, float* row)
+  struct RowScratch
   {
+    std::vector<float> s, dx, dy, dz, vig;
+    std::vector<uint8_t> state;
+    explicit RowScratch(int n) : s(n), dx(n), dy(n), dz(n), vig(n), state(n) {}
+  };
+  auto rock_row = [&](int v, float* row, RowScratch* scratch)
+  {
+    // Locals, not captures: the stores to row would otherwise force a reload
+    // of every captured constant after each pixel (they might alias).
+    const float Rf[9] = {static_cast<float>(R(0, 0)), static_cast<float>(R(0, 1)), static_cast<float>(R(0, 2)),
+                         static_cast<float>(R(1, 0)), static_cast<float>(R(1, 1)), static_cast<float>(R(1, 2)),
+                         static_cast<float>(R(2, 0)), static_cast<float>(R(2, 1)), static_cast<float>(R(2, 2))};
+    const float ox = static_cast<float>(o.x()), oy = static_cast<float>(o.y()), oz = static_cast<float>(o.z());
+    const float ic = static_cast<float>(1.0 / im.cell);
+    const float gx0 = static_cast<float>(im.x0), gy0 = static_cast<float>(im.y0);
+    const float nxf = static_cast<float>(im.nx), nyf = static_cast<float>(im.ny);
+    const float half_w = static_cast<float>(im.half_w), half_h = static_cast<float>(im.half_h);
+    const float sunf = static_cast<float>(sun);
+    const float ifx = static_cast<float>(im.sub / cam.fx);
+    const float fcx = static_cast<float>((cam.cx - sample_offset) / im.sub);
+    const float* hs = im.hs.data();
+    const int stride = im.nx + 1;
+    const bool vig = vignetting, use_lut = lut;
+    const int nx = im.nx, ny = im.ny;
     if (!lattice)
     {
       for (int u = 0; u < Wr; ++u)
@@ -1049,7 +1059,15 @@ SimFrame Simulator::render(double t) const
     const int cv0 = coarse_pos(j, Hr), cv1 = coarse_pos(j + 1, Hr);
     const double fy = cv1 > cv0 ? static_cast<double>(v - cv0) / (cv1 - cv0) : 0.0;
     const float yn_row = static_cast<float>((im.sub * v + sample_offset - cam.cy) / cam.fy);
-    const float* lut_row = lut ? &im.ray_lut[2 * static_cast<size_t>(v) * Wr] : nullptr;
+    const float* lut_row = use_lut ? &im.ray_lut[2 * static_cast<size_t>(v) * Wr] : nullptr;
+    float* S = scratch->s.data();
+    float* DX = scratch->dx.data();
+    float* DY = scratch->dy.data();
+    float* DZ = scratch->dz.data();
+    float* VG = scratch->vig.data();
+    uint8_t* state = scratch->state.data();  // 0 converged, 1 more Newton, 2 robust
+    // Simple passes over the row with few, predictable branches, so that the
+    // samples' latency chains (load, divide) overlap.
     for (int i = 0; i + 1 < ncx; ++i)
     {
       const int u0 = coarse_pos(i, Wr), u1 = coarse_pos(i + 1, Wr);
@@ -1059,80 +1077,94 @@ SimFrame Simulator::render(double t) const
       const double smin = std::min(std::min(c0[0], c0[1]), std::min(c1[0], c1[1]));
       const double smax = std::max(std::max(c0[0], c0[1]), std::max(c1[0], c1[1]));
       // NaN corners fail this test: misses and edges take the robust path.
-      if (!(smax - smin <= kCoarseSpreadM))
-      {
-        for (int u = u0; u <= uend; ++u)
-          robust_pixel(u, v, row + 3 * u);
-        continue;
-      }
-      const float sa = static_cast<float>(c0[0] + fy * (c1[0] - c0[0]));
-      const float sd = static_cast<float>(c0[1] + fy * (c1[1] - c0[1])) - sa;
+      const bool smooth = smax - smin <= kCoarseSpreadM;
+      const float sa = smooth ? static_cast<float>(c0[0] + fy * (c1[0] - c0[0])) : 1.0f;
+      const float sd = smooth ? static_cast<float>(c0[1] + fy * (c1[1] - c0[1])) - sa : 0.0f;
       const float inv_len = u1 > u0 ? 1.0f / static_cast<float>(u1 - u0) : 0.0f;
       for (int u = u0; u <= uend; ++u)
       {
-        const float xn = lut ? lut_row[2 * u] : (static_cast<float>(u) - fcx) * ifx;
-        const float yn = lut ? lut_row[2 * u + 1] : yn_row;
-        const float dx = Rf[0] * xn + Rf[1] * yn + Rf[2];
-        const float dy = Rf[3] * xn + Rf[4] * yn + Rf[5];
-        const float dz = Rf[6] * xn + Rf[7] * yn + Rf[8];
-        float s = sa + static_cast<float>(u - u0) * inv_len * sd;
-        // One Newton step is enough almost everywhere (the next would move
-        // the point by < 1e-4 m); a large first step asks for more.
-        bool ok = true;
-        for (int n = 0; n < 4; ++n)
-        {
-          const float gxf = (ox + s * dx - gx0) * ic, gyf = (oy + s * dy - gy0) * ic;
-          if (!(gxf >= 0.0f && gyf >= 0.0f && gxf < nxf && gyf < nyf))
-          {
-            ok = false;
-            break;
-          }
-          const int ci = static_cast<int>(gxf), cj = static_cast<int>(gyf);
-          const float tx = gxf - ci, ty = gyf - cj;
-          const float* r0 = hs + 4 * (cj * stride + ci) + 3;
-          const float* r1 = r0 + 4 * stride;
-          const float h00 = r0[0], h10 = r0[4], h01 = r1[0], h11 = r1[4];
-          const float a = h00 + tx * (h10 - h00), b = h01 + tx * (h11 - h01);
-          const float gap = a + ty * (b - a) - (oz + s * dz);
-          const float slope = (((h10 - h00) * (1.0f - ty) + (h11 - h01) * ty) * dx + (b - a) * dy) * ic - dz;
-          if (!(slope < -1e-6f) || std::abs(gap) > 0.05f)
-          {
-            ok = false;
-            break;
-          }
-          const float step = gap / slope;
-          s -= step;
-          if (std::abs(step) < 5e-4f)
-            break;
-          if (n == 3)
-            ok = false;
-        }
-        const float px = ox + s * dx, py = oy + s * dy;
-        if (!ok || !(std::abs(px) <= half_w && std::abs(py) <= half_h))
-        {
-          robust_pixel(u, v, row + 3 * u);
-          continue;
-        }
-        const float gxf = (px - gx0) * ic, gyf = (py - gy0) * ic;
-        const int ci = std::min(std::max(static_cast<int>(gxf), 0), im.nx - 1);
-        const int cj = std::min(std::max(static_cast<int>(gyf), 0), im.ny - 1);
-        const float tx = gxf - ci, ty = gyf - cj;
-        float scale = sunf;
-        if (vignetting)
-        {
-          const float q = 1.0f + xn * xn + yn * yn;
-          scale /= q * q;
-        }
-        const float* p00 = hs + 4 * (cj * stride + ci);
-        const float* p01 = p00 + 4 * stride;
-        const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
-        const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
-        // All four lanes (B, G, R, h) in one go; the fourth lands on the next
-        // pixel's B, which is written after it (rows have one float of slack).
-        float* out = row + 3 * u;
-        for (int c = 0; c < 4; ++c)
-          out[c] = w00 * p00[c] + w10 * p00[4 + c] + w01 * p01[c] + w11 * p01[4 + c];
+        S[u] = sa + static_cast<float>(u - u0) * inv_len * sd;
+        state[u] = smooth ? 0 : 2;
       }
+    }
+    for (int u = 0; u < Wr; ++u)
+    {
+      const float xn = use_lut ? lut_row[2 * u] : (static_cast<float>(u) - fcx) * ifx;
+      const float yn = use_lut ? lut_row[2 * u + 1] : yn_row;
+      DX[u] = Rf[0] * xn + Rf[1] * yn + Rf[2];
+      DY[u] = Rf[3] * xn + Rf[4] * yn + Rf[5];
+      DZ[u] = Rf[6] * xn + Rf[7] * yn + Rf[8];
+      const float q = 1.0f + xn * xn + yn * yn;
+      VG[u] = vig ? sunf / (q * q) : sunf;
+    }
+    // Newton on the bilinear height field from the interpolated depth, in
+    // float (1e-7 m is far below the 4 mm texture cell). One step is enough
+    // almost everywhere (the next would move the point by < 1e-4 m).
+    auto newton = [&](int u, float s, float* step_out)
+    {
+      const float dx = DX[u], dy = DY[u], dz = DZ[u];
+      const float gxf = (ox + s * dx - gx0) * ic, gyf = (oy + s * dy - gy0) * ic;
+      const bool inside = gxf >= 0.0f && gyf >= 0.0f && gxf < nxf && gyf < nyf;
+      const int ci = inside ? static_cast<int>(gxf) : 0, cj = inside ? static_cast<int>(gyf) : 0;
+      const float tx = gxf - ci, ty = gyf - cj;
+      const float* r0 = hs + 4 * (cj * stride + ci) + 3;
+      const float* r1 = r0 + 4 * stride;
+      const float h00 = r0[0], h10 = r0[4], h01 = r1[0], h11 = r1[4];
+      const float a = h00 + tx * (h10 - h00), b = h01 + tx * (h11 - h01);
+      const float gap = a + ty * (b - a) - (oz + s * dz);
+      const float slope = (((h10 - h00) * (1.0f - ty) + (h11 - h01) * ty) * dx + (b - a) * dy) * ic - dz;
+      const bool good = inside && slope < -1e-6f && std::abs(gap) <= 0.05f;
+      *step_out = good ? gap / slope : 0.0f;
+      return good;
+    };
+    for (int u = 0; u < Wr; ++u)
+    {
+      float step;
+      const bool good = newton(u, S[u], &step);
+      S[u] -= step;
+      const uint8_t next = good ? (std::abs(step) < 5e-4f ? 0 : 1) : 2;
+      state[u] = std::max(state[u], next);
+    }
+    for (int u = 0; u < Wr; ++u)
+    {
+      if (state[u] != 1)
+        continue;
+      state[u] = 2;  // unless it converges within three more steps
+      for (int n = 0; n < 3; ++n)
+      {
+        float step;
+        if (!newton(u, S[u], &step))
+          break;
+        S[u] -= step;
+        if (std::abs(step) < 5e-4f)
+        {
+          state[u] = 0;
+          break;
+        }
+      }
+    }
+    for (int u = 0; u < Wr; ++u)
+    {
+      float* out = row + 3 * u;
+      const float px = ox + S[u] * DX[u], py = oy + S[u] * DY[u];
+      if (state[u] != 0 || !(std::abs(px) <= half_w && std::abs(py) <= half_h))
+      {
+        robust_pixel(u, v, out);
+        continue;
+      }
+      const float gxf = (px - gx0) * ic, gyf = (py - gy0) * ic;
+      const int ci = std::min(std::max(static_cast<int>(gxf), 0), nx - 1);
+      const int cj = std::min(std::max(static_cast<int>(gyf), 0), ny - 1);
+      const float tx = gxf - ci, ty = gyf - cj;
+      const float scale = VG[u];
+      const float* p00 = hs + 4 * (cj * stride + ci);
+      const float* p01 = p00 + 4 * stride;
+      const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
+      const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
+      // All four lanes (B, G, R, h) in one go; the fourth lands on the next
+      // pixel's B, which is written after it (rows have one float of slack).
+      for (int c = 0; c < 4; ++c)
+        out[c] = w00 * p00[c] + w10 * p00[4 + c] + w01 * p01[c] + w11 * p01[4 + c];
     }
   };
 
@@ -1160,8 +1192,9 @@ SimFrame Simulator::render(double t) const
     cv::parallel_for_(cv::Range(0, Hr),
                       [&](const cv::Range& range)
                       {
+                        RowScratch scratch(Wr);
                         for (int j = range.start; j < range.end; ++j)
-                          rock_row(j, rock + rock_stride * j);
+                          rock_row(j, rock + rock_stride * j, &scratch);
                       });
   }
   // Bilinear upsampling: the two sample rows blended first (a plain loop that
