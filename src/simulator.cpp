@@ -25,16 +25,12 @@ constexpr double kPi = 3.14159265358979323846;
 // dot_to_sun_ratio refers to a beam of this divergence hitting the rock at
 // this distance at normal incidence; a narrower beam concentrates the same
 // power on a smaller footprint.
-constexpr double kRefBeamSigmaRad = 0.002;
-constexpr double kRefDistanceM = 1.5;
+constexpr double kRefBeamSigmaRad = LightingConfig::kReferenceBeamSigmaRad;
+constexpr double kRefDistanceM = LightingConfig::kReferenceDistanceM;
 
 // Relative response of the B, G, R pixels of a Bayer sensor to 520 nm light:
 // mostly green, with the usual cross-talk into blue and a little into red.
 constexpr double kDotResponseBgr[3] = {0.22, 1.0, 0.08};
-
-// Diffuse sky light as a fraction of the direct sun on a surface facing it,
-// so that faces turned away from the sun are dim, not black.
-constexpr double kSkyAmbient = 0.08;
 
 // Reflectance of the terrain behind the rock (B, G, R), lit like the rock.
 constexpr double kBackgroundBgr[3] = {0.015, 0.025, 0.045};
@@ -191,7 +187,8 @@ struct Simulator::Impl
   std::vector<float> hs;
   double hmin = 0.0, hmax = 0.0;
   double lip_x = 0.0, lip_y = 0.0;  // Lipschitz bounds of the bilinear surface
-  Eigen::Vector3d sun_dir = Eigen::Vector3d(-0.40, -0.45, -0.80).normalized();  // rock frame, towards the sun
+  Eigen::Vector3d sun_dir = Eigen::Vector3d(0.0, 0.0, -1.0);  // rock frame, towards the sun (unit)
+  double sky = 0.0;
   Eigen::Isometry3d T_rock_cam0 = Eigen::Isometry3d::Identity();
   // Rock sample lattice: sample (i, j) is the ray through pixel
   // (sub * i + (sub - 1) / 2, sub * j + (sub - 1) / 2).
@@ -395,6 +392,9 @@ std::string SimulatorConfig::validate() const
     why << "power_scale must be >= 0; ";
   if (!finite_nonneg(lighting.sun_level) || !finite_nonneg(lighting.dot_to_sun_ratio) || !finite_pos(lighting.exposure))
     why << "sun_level, dot_to_sun_ratio must be >= 0 and exposure > 0; ";
+  if (!lighting.sun_direction.allFinite() || !(lighting.sun_direction.norm() > 1e-9) ||
+      !finite_nonneg(lighting.sky_ambient) || lighting.sky_ambient > 1.0)
+    why << "sun_direction must be a finite non-zero vector and sky_ambient in [0, 1]; ";
   if (!finite_nonneg(motion.jitter_translation_m) || !finite_nonneg(motion.jitter_rotation_rad) ||
       !finite_nonneg(motion.jitter_frequency_hz) || !finite_nonneg(motion.step_period_s) ||
       !finite_nonneg(motion.return_period_s) || !motion.drift_velocity_mps.allFinite() ||
@@ -503,6 +503,9 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl->lip_x = lx / impl->cell * 1.001 + 1e-9;
   impl->lip_y = ly / impl->cell * 1.001 + 1e-9;
 
+  impl->sun_dir = config.lighting.sun_direction.normalized();
+  impl->sky = config.lighting.sky_ambient;
+
   // Albedo: reddish (R > G > B), features from 25 cm down to texture_scale_m,
   // R in [albedo_min, albedo_max]; G and B follow with a slowly varying hue.
   std::vector<std::pair<double, double>> tex;
@@ -528,7 +531,7 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
       rf[1] = static_cast<float>(g);
       rf[2] = static_cast<float>(r);
       const Eigen::Vector3d nrm = Eigen::Vector3d(impl->gx[k], impl->gy[k], -1.0).normalized();
-      const double shade = std::max(0.0, nrm.dot(impl->sun_dir)) + kSkyAmbient;
+      const double shade = std::max(0.0, nrm.dot(impl->sun_dir)) + impl->sky;
       for (int c = 0; c < 3; ++c)
         impl->sunlit[3 * static_cast<size_t>(k) + c] = static_cast<float>(rf[c] * shade);
     }
@@ -617,10 +620,22 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl_ = impl;
 }
 
+double LightingConfig::sceneDotToSunRatio(RadiometryModel model)
+{
+  // analyseScene() integrates spectra: compute each model once.
+  static const double study = dotToSunRatio(SceneInputs(), RadiometryModel::kStudyAsStated,
+                                            kReferenceBeamSigmaRad * kReferenceDistanceM);
+  static const double corrected =
+      dotToSunRatio(SceneInputs(), RadiometryModel::kCorrected, kReferenceBeamSigmaRad * kReferenceDistanceM);
+  return model == RadiometryModel::kStudyAsStated ? study : corrected;
+}
+
 void Simulator::updateLive(const SimulatorConfig& config)
 {
   SimulatorConfig c = config_;
   c.lighting = config.lighting;
+  c.lighting.sun_direction = config_.lighting.sun_direction;  // baked into the rock's shading
+  c.lighting.sky_ambient = config_.lighting.sky_ambient;
   c.motion = config.motion;
   c.sensor.read_noise_dn = config.sensor.read_noise_dn;
   c.sensor.shot_noise = config.sensor.shot_noise;
@@ -876,7 +891,7 @@ SimFrame Simulator::render(double t) const
       const Eigen::Matrix3d Ss = item.radius_m * item.radius_m * (Eigen::Matrix3d::Identity() - n * n.transpose());
       const Eigen::Matrix<double, 2, 3> J = projectionJacobian(cam, X);
       const Eigen::Matrix2d S = J * Ss * J.transpose() + pixel_box_var * Eigen::Matrix2d::Identity();
-      const double shade = (std::max(0.0, n_rock.dot(im.sun_dir)) + kSkyAmbient) * sun * vignette_at(X);
+      const double shade = (std::max(0.0, n_rock.dot(im.sun_dir)) + im.sky) * sun * vignette_at(X);
       Splat sp;
       sp.cx = p.x;
       sp.cy = p.y;
@@ -1017,7 +1032,7 @@ SimFrame Simulator::render(double t) const
     else
     {
       for (int c = 0; c < 3; ++c)
-        out[c] = static_cast<float>(kBackgroundBgr[c] * (kSkyAmbient + 0.5) * scale);
+        out[c] = static_cast<float>(kBackgroundBgr[c] * (im.sky + 0.5) * scale);
     }
   };
 

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cctype>
 #include <chrono>
+#include <cstdio>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -419,6 +420,10 @@ private:
     uint64_t index = 0, index_base = 0;
     double t_base = 0.0, rate_base = currentRate();
     bool announced_end = false;
+    // Publish rate actually reached (rendering may not keep up): mean period
+    // between frames published on consecutive ticks.
+    ros::WallTime previous_publish;
+    bool consecutive = false;
     while (running_ && ros::ok())
     {
       const double rate = currentRate();
@@ -445,7 +450,10 @@ private:
       ++index;
       if (lazy_ && camera_pub_.getNumSubscribers() == 0 && gt_points_pub_.getNumSubscribers() == 0 &&
           gt_pose_pub_.getNumSubscribers() == 0 && gt_spots_pub_.getNumSubscribers() == 0)
+      {
+        consecutive = false;
         continue;
+      }
 
       std::shared_ptr<const Simulator> sim;
       {
@@ -495,7 +503,29 @@ private:
       pose->status = "ground truth, simulated t = " + std::to_string(t) + " s";
       gt_pose_pub_.publish(pose);
       gt_spots_pub_.publish(spots);
+
+      const ros::WallTime now = ros::WallTime::now();
+      if (consecutive)
+        noteFramePeriod((now - previous_publish).toSec(), rate, ms);
+      previous_publish = now;
+      consecutive = true;
     }
+  }
+
+  // Keeps a running mean of the publish period; when rendering cannot keep
+  // up, the loop publishes as fast as it can (no catch-up burst, see
+  // advance()) and says so.
+  void noteFramePeriod(double period_s, double rate, double render_ms)
+  {
+    double hz;
+    {
+      std::lock_guard<std::mutex> lock(status_mutex_);
+      mean_period_s_ = mean_period_s_ > 0.0 ? 0.9 * mean_period_s_ + 0.1 * period_s : period_s;
+      hz = 1.0 / mean_period_s_;
+    }
+    if (hz < 0.9 * rate)
+      NODELET_WARN_THROTTLE(30.0, "CameraDriver: rendering at %.1f Hz < requested %.1f Hz (%.1f ms per render)", hz,
+                            rate, render_ms);
   }
 
   // camera_info for a frame of a real source: the loaded calibration when it
@@ -784,14 +814,22 @@ private:
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   {
+    const double rate = currentRate();  // before status_mutex_: one lock at a time
     std::lock_guard<std::mutex> lock(status_mutex_);
     const bool recent_error = !last_error_.empty() && (ros::WallTime::now() - last_error_time_).toSec() < 10.0;
+    const double reached_hz = mean_period_s_ > 0.0 ? 1.0 / mean_period_s_ : 0.0;
+    char slow[128];
+    std::snprintf(slow, sizeof(slow), "rendering at %.1f Hz < requested %.1f Hz", reached_hz, rate);
     if (recent_error)
       stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, last_error_);
     else if (frames_published_ == 0)
       stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no frame published yet");
+    else if (source_ == "sim" && reached_hz > 0.0 && reached_hz < 0.9 * rate)
+      stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, slow);
     else
       stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "publishing");
+    if (source_ == "sim")
+      stat.add("publish rate reached (Hz)", reached_hz);
     stat.add("source", source_);
     stat.add("frame_id", frame_id_);
     stat.add("frames published", frames_published_);
@@ -827,6 +865,7 @@ private:
   ros::WallTime last_error_time_;
   uint64_t frames_published_ = 0;
   double processing_ms_ = 0.0;
+  double mean_period_s_ = 0.0;  // sim: running mean of the publish period
   cv::Size last_size_;
 
   std::atomic<bool> running_{false};
