@@ -208,7 +208,21 @@ private:
     c.projector.beam_sigma_rad = pnh.param("beam_sigma", c.projector.beam_sigma_rad);
     c.projector.power_scale = pnh.param("power_scale", c.projector.power_scale);
     c.lighting.sun_level = pnh.param("sun_level", c.lighting.sun_level);
-    c.lighting.dot_to_sun_ratio = pnh.param("dot_to_sun_ratio", c.lighting.dot_to_sun_ratio);
+    // The dot-versus-sun brightness comes from the scene analysis unless
+    // ~dot_to_sun_ratio overrides it (negative = not set).
+    radiometry_ = pnh.param<std::string>("radiometry", "study");
+    RadiometryModel model = RadiometryModel::kStudyAsStated;
+    if (!radiometryModel(radiometry_, &model))
+    {
+      NODELET_ERROR("CameraDriver: ~radiometry '%s' is neither 'study' nor 'corrected'; using 'study'",
+                    radiometry_.c_str());
+      radiometry_ = "study";
+      model = RadiometryModel::kStudyAsStated;
+      pnh.setParam("radiometry", radiometry_);
+    }
+    const double ratio = pnh.param("dot_to_sun_ratio", -1.0);
+    c.lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingConfig::sceneDotToSunRatio(model);
+    const std::string ratio_source = ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
     c.lighting.exposure = pnh.param("exposure", c.lighting.exposure);
     c.motion.jitter_translation_m = pnh.param("jitter_translation", c.motion.jitter_translation_m);
     c.motion.jitter_rotation_rad = pnh.param("jitter_rotation", c.motion.jitter_rotation_rad);
@@ -230,6 +244,7 @@ private:
       c.sensor.camera.distortion = DistortionModel::kPlumbBob;
       c.sensor.camera.D = D;
     }
+    c.rock_subsample = get_int("rock_subsample", c.rock_subsample);
     c.clutter.green_specks = get_int("clutter_specks", 0);
     c.clutter.olive_minerals = get_int("clutter_olive", 0);
     c.clutter.green_blobs = get_int("clutter_blobs", 0);
@@ -259,9 +274,12 @@ private:
     {
       const auto t0 = std::chrono::steady_clock::now();
       simulator_ = std::make_shared<const Simulator>(c);
-      NODELET_INFO("CameraDriver: simulator ready in %.0f ms (rock at %.2f m, relief %.2f m, %dx%d beams, sun %.2f)",
-                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
-                   c.rock.distance_m, c.rock.relief_m, c.projector.rows, c.projector.cols, c.lighting.sun_level);
+      NODELET_INFO(
+          "CameraDriver: simulator ready in %.0f ms (rock at %.2f m, relief %.2f m, %dx%d beams, sun %.2f, dot/sun "
+          "ratio %.4g%s)",
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(), c.rock.distance_m,
+          c.rock.relief_m, c.projector.rows, c.projector.cols, c.lighting.sun_level, c.lighting.dot_to_sun_ratio,
+          ratio_source.c_str());
     }
     catch (const std::exception& e)
     {
@@ -300,7 +318,17 @@ private:
     {
       SimulatorConfig c = simulator_->config();
       c.lighting.sun_level = config.sun_level;
-      c.lighting.dot_to_sun_ratio = config.dot_to_sun_ratio;
+      RadiometryModel model = RadiometryModel::kStudyAsStated;
+      if (!radiometryModel(config.radiometry, &model))
+      {
+        NODELET_ERROR("CameraDriver: radiometry '%s' is neither 'study' nor 'corrected'; keeping '%s'",
+                      config.radiometry.c_str(), radiometry_.c_str());
+        config.radiometry = radiometry_;
+        radiometryModel(radiometry_, &model);
+      }
+      radiometry_ = config.radiometry;
+      c.lighting.dot_to_sun_ratio =
+          config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingConfig::sceneDotToSunRatio(model);
       c.lighting.exposure = config.exposure;
       c.projector.power_scale = config.power_scale;
       c.motion.jitter_translation_m = config.jitter_translation;
@@ -322,6 +350,17 @@ private:
     }
     rate_ = config.rate;
     setExpectedRate(rate_);
+  }
+
+  static bool radiometryModel(const std::string& name, RadiometryModel* model)
+  {
+    if (name == "study")
+      *model = RadiometryModel::kStudyAsStated;
+    else if (name == "corrected")
+      *model = RadiometryModel::kCorrected;
+    else
+      return false;
+    return true;
   }
 
   void setExpectedRate(double rate)
@@ -841,6 +880,7 @@ private:
   }
 
   std::string source_, frame_id_, camera_info_url_;
+  std::string radiometry_ = "study";  // under config_mutex_ once running
   double rate_ = 30.0, duration_s_ = 0.0;
   bool lazy_ = true;
   bool calibrated_from_url_ = false;
