@@ -405,7 +405,10 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
   const sls::SceneAnalysis scene = sls::analyseScene(sls::SceneInputs());
   const double dot_sigma_m = sls::LightingConfig::kReferenceBeamSigmaRad * sls::LightingConfig::kReferenceDistanceM;
   const double incidence = scene.inputs.sun_incidence_min_deg * M_PI / 180.0;
-  const double weakest_sun = scene.irradiance_latitude.min / scene.irradiance_latitude.max;
+  // The weakest daylight sun (lowest F50, 50 deg incidence) as a sun_level,
+  // which counts the sun at the study's brightest incidence (10 deg).
+  const double weakest_sun = scene.irradiance_latitude.min * std::cos(scene.inputs.sun_incidence_max_deg * M_PI / 180.0) /
+                             (scene.irradiance_latitude.max * std::cos(incidence));
   struct Case
   {
     const char* name;
