@@ -178,7 +178,7 @@ struct Simulator::Impl
   // Height field and its smooth gradient on a regular vertex grid over the
   // rock extent; vertex (i, j) at (x0 + i * cell, y0 + j * cell).
   int nx = 0, ny = 0;  // cells
-  double cell = 0.004, x0 = 0.0, y0 = 0.0, half_w = 1.0, half_h = 1.0;
+  double cell = 0.004, inv_cell = 250.0, x0 = 0.0, y0 = 0.0, half_w = 1.0, half_h = 1.0;
   std::vector<float> h, gx, gy;
   std::vector<float> refl;    // B, G, R reflectance per vertex
   std::vector<float> sunlit;  // B, G, R reflectance * (sun cosine + sky) per vertex
@@ -205,7 +205,7 @@ struct Simulator::Impl
 
   void locate(double x, double y, int* i, int* j, double* fx, double* fy) const
   {
-    double u = (x - x0) / cell, v = (y - y0) / cell;
+    double u = (x - x0) * inv_cell, v = (y - y0) * inv_cell;
     u = std::min(std::max(u, 0.0), static_cast<double>(nx));
     v = std::min(std::max(v, 0.0), static_cast<double>(ny));
     *i = std::min(static_cast<int>(u), nx - 1);
@@ -228,8 +228,8 @@ struct Simulator::Impl
     const double b = h01 + fx * (h11 - h01);
     if (dhdx)
     {
-      *dhdx = ((h10 - h00) * (1.0 - fy) + (h11 - h01) * fy) / cell;
-      *dhdy = (b - a) / cell;
+      *dhdx = ((h10 - h00) * (1.0 - fy) + (h11 - h01) * fy) * inv_cell;
+      *dhdy = (b - a) * inv_cell;
     }
     return a + fy * (b - a);
   }
@@ -434,6 +434,7 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl->nx = std::max(2, static_cast<int>(std::ceil(rc.width_m / impl->cell)));
   impl->ny = std::max(2, static_cast<int>(std::ceil(rc.height_m / impl->cell)));
   impl->cell = std::max(rc.width_m / impl->nx, rc.height_m / impl->ny);
+  impl->inv_cell = 1.0 / impl->cell;
   impl->x0 = -0.5 * impl->nx * impl->cell;
   impl->y0 = -0.5 * impl->ny * impl->cell;
   const int vx = impl->nx + 1, vy = impl->ny + 1;
