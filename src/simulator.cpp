@@ -11,6 +11,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
+#include <opencv2/core/hal/hal.hpp>
 
 namespace structured_light_stabilizer
 {
@@ -24,16 +25,12 @@ constexpr double kPi = 3.14159265358979323846;
 // dot_to_sun_ratio refers to a beam of this divergence hitting the rock at
 // this distance at normal incidence; a narrower beam concentrates the same
 // power on a smaller footprint.
-constexpr double kRefBeamSigmaRad = 0.002;
-constexpr double kRefDistanceM = 1.5;
+constexpr double kRefBeamSigmaRad = LightingConfig::kReferenceBeamSigmaRad;
+constexpr double kRefDistanceM = LightingConfig::kReferenceDistanceM;
 
 // Relative response of the B, G, R pixels of a Bayer sensor to 520 nm light:
 // mostly green, with the usual cross-talk into blue and a little into red.
 constexpr double kDotResponseBgr[3] = {0.22, 1.0, 0.08};
-
-// Diffuse sky light as a fraction of the direct sun on a surface facing it,
-// so that faces turned away from the sun are dim, not black.
-constexpr double kSkyAmbient = 0.08;
 
 // Reflectance of the terrain behind the rock (B, G, R), lit like the rock.
 constexpr double kBackgroundBgr[3] = {0.015, 0.025, 0.045};
@@ -140,15 +137,18 @@ double inverseNormalCdf(double p)
          (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1.0);
 }
 
-// Standard normal deviates indexed by 16 random bits: one 64-bit draw gives
-// the three channels of a pixel, about 20x faster than std::normal_distribution.
+// Standard normal deviates as 4096 equiprobable quantiles indexed by 12
+// random bits: one 64-bit draw gives five, from a table that stays in L1.
+// The tails end at +-3.67 sigma and the variance is 0.9997 (both far below
+// what an 8-bit frame shows).
+constexpr int kNormalTableSize = 4096;
 const std::vector<float>& normalTable()
 {
   static const std::vector<float> table = []
   {
-    std::vector<float> t(65536);
-    for (int i = 0; i < 65536; ++i)
-      t[i] = static_cast<float>(inverseNormalCdf((i + 0.5) / 65536.0));
+    std::vector<float> t(kNormalTableSize);
+    for (int i = 0; i < kNormalTableSize; ++i)
+      t[i] = static_cast<float>(inverseNormalCdf((i + 0.5) / kNormalTableSize));
     return t;
   }();
   return table;
@@ -178,15 +178,25 @@ struct Simulator::Impl
   // Height field and its smooth gradient on a regular vertex grid over the
   // rock extent; vertex (i, j) at (x0 + i * cell, y0 + j * cell).
   int nx = 0, ny = 0;  // cells
-  double cell = 0.004, x0 = 0.0, y0 = 0.0, half_w = 1.0, half_h = 1.0;
+  double cell = 0.004, inv_cell = 250.0, x0 = 0.0, y0 = 0.0, half_w = 1.0, half_h = 1.0;
   std::vector<float> h, gx, gy;
   std::vector<float> refl;    // B, G, R reflectance per vertex
   std::vector<float> sunlit;  // B, G, R reflectance * (sun cosine + sky) per vertex
+  // Sunlit B, G, R and height interleaved per vertex: what a rock pixel
+  // reads, in one or two cache lines, and one SIMD register per vertex.
+  std::vector<float> hs;
   double hmin = 0.0, hmax = 0.0;
   double lip_x = 0.0, lip_y = 0.0;  // Lipschitz bounds of the bilinear surface
-  Eigen::Vector3d sun_dir = Eigen::Vector3d(-0.40, -0.45, -0.80).normalized();  // rock frame, towards the sun
+  Eigen::Vector3d sun_dir = Eigen::Vector3d(0.0, 0.0, -1.0);  // rock frame, towards the sun (unit)
+  double sky = 0.0;
   Eigen::Isometry3d T_rock_cam0 = Eigen::Isometry3d::Identity();
-  std::vector<float> ray_lut;  // (x/z, y/z) per pixel, only with lens distortion
+  // Rock sample lattice: sample (i, j) is the ray through pixel
+  // (sub * i + (sub - 1) / 2, sub * j + (sub - 1) / 2).
+  int sub = 1, rw = 0, rh = 0;
+  std::vector<float> ray_lut;  // (x/z, y/z) per rock sample, only with lens distortion
+  // Full-resolution pixel u -> samples i0, i1 and the weight of i1 (same for rows).
+  std::vector<int> up_i0, up_i1, up_j0, up_j1;
+  std::vector<float> up_wx, up_wy;
   std::vector<ClutterItem> clutter;
 
   int vertex(int i, int j) const { return j * (nx + 1) + i; }
@@ -195,7 +205,7 @@ struct Simulator::Impl
 
   void locate(double x, double y, int* i, int* j, double* fx, double* fy) const
   {
-    double u = (x - x0) / cell, v = (y - y0) / cell;
+    double u = (x - x0) * inv_cell, v = (y - y0) * inv_cell;
     u = std::min(std::max(u, 0.0), static_cast<double>(nx));
     v = std::min(std::max(v, 0.0), static_cast<double>(ny));
     *i = std::min(static_cast<int>(u), nx - 1);
@@ -218,8 +228,8 @@ struct Simulator::Impl
     const double b = h01 + fx * (h11 - h01);
     if (dhdx)
     {
-      *dhdx = ((h10 - h00) * (1.0 - fy) + (h11 - h01) * fy) / cell;
-      *dhdy = (b - a) / cell;
+      *dhdx = ((h10 - h00) * (1.0 - fy) + (h11 - h01) * fy) * inv_cell;
+      *dhdy = (b - a) * inv_cell;
     }
     return a + fy * (b - a);
   }
@@ -382,11 +392,16 @@ std::string SimulatorConfig::validate() const
     why << "power_scale must be >= 0; ";
   if (!finite_nonneg(lighting.sun_level) || !finite_nonneg(lighting.dot_to_sun_ratio) || !finite_pos(lighting.exposure))
     why << "sun_level, dot_to_sun_ratio must be >= 0 and exposure > 0; ";
+  if (!lighting.sun_direction.allFinite() || !(lighting.sun_direction.norm() > 1e-9) ||
+      !finite_nonneg(lighting.sky_ambient) || lighting.sky_ambient > 1.0)
+    why << "sun_direction must be a finite non-zero vector and sky_ambient in [0, 1]; ";
   if (!finite_nonneg(motion.jitter_translation_m) || !finite_nonneg(motion.jitter_rotation_rad) ||
       !finite_nonneg(motion.jitter_frequency_hz) || !finite_nonneg(motion.step_period_s) ||
       !finite_nonneg(motion.return_period_s) || !motion.drift_velocity_mps.allFinite() ||
       !motion.drift_angular_velocity_radps.allFinite() || !motion.step_translation_m.allFinite())
     why << "motion amplitudes, frequency and periods must be finite and >= 0; ";
+  if (rock_subsample < 1 || rock_subsample > 4)
+    why << "rock_subsample " << rock_subsample << " is outside [1, 4]; ";
   if (clutter.green_specks < 0 || clutter.olive_minerals < 0 || clutter.green_blobs < 0 ||
       clutter.green_specks > 100000 || clutter.olive_minerals > 100000 || clutter.green_blobs > 100000)
     why << "clutter counts must be in [0, 100000]; ";
@@ -419,6 +434,7 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl->nx = std::max(2, static_cast<int>(std::ceil(rc.width_m / impl->cell)));
   impl->ny = std::max(2, static_cast<int>(std::ceil(rc.height_m / impl->cell)));
   impl->cell = std::max(rc.width_m / impl->nx, rc.height_m / impl->ny);
+  impl->inv_cell = 1.0 / impl->cell;
   impl->x0 = -0.5 * impl->nx * impl->cell;
   impl->y0 = -0.5 * impl->ny * impl->cell;
   const int vx = impl->nx + 1, vy = impl->ny + 1;
@@ -488,6 +504,9 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl->lip_x = lx / impl->cell * 1.001 + 1e-9;
   impl->lip_y = ly / impl->cell * 1.001 + 1e-9;
 
+  impl->sun_dir = config.lighting.sun_direction.normalized();
+  impl->sky = config.lighting.sky_ambient;
+
   // Albedo: reddish (R > G > B), features from 25 cm down to texture_scale_m,
   // R in [albedo_min, albedo_max]; G and B follow with a slowly varying hue.
   std::vector<std::pair<double, double>> tex;
@@ -513,10 +532,18 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
       rf[1] = static_cast<float>(g);
       rf[2] = static_cast<float>(r);
       const Eigen::Vector3d nrm = Eigen::Vector3d(impl->gx[k], impl->gy[k], -1.0).normalized();
-      const double shade = std::max(0.0, nrm.dot(impl->sun_dir)) + kSkyAmbient;
+      const double shade = std::max(0.0, nrm.dot(impl->sun_dir)) + impl->sky;
       for (int c = 0; c < 3; ++c)
         impl->sunlit[3 * static_cast<size_t>(k) + c] = static_cast<float>(rf[c] * shade);
     }
+  }
+
+  impl->hs.resize(4 * nv);
+  for (size_t k = 0; k < nv; ++k)
+  {
+    for (int c = 0; c < 3; ++c)
+      impl->hs[4 * k + c] = impl->sunlit[3 * k + c];
+    impl->hs[4 * k + 3] = impl->h[k];
   }
 
   const Eigen::Matrix3d R_tilt = (Eigen::AngleAxisd(rc.tilt_x_rad, Eigen::Vector3d::UnitX()) *
@@ -528,18 +555,50 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl->T_rock_cam0 = T_cam0_rock.inverse();
 
   const CameraModel& cam = config.sensor.camera;
+  impl->sub = config.rock_subsample;
+  impl->rw = (cam.width + impl->sub - 1) / impl->sub;
+  impl->rh = (cam.height + impl->sub - 1) / impl->sub;
+  const double offset = 0.5 * (impl->sub - 1);
   if (cam.hasDistortion())
   {
-    impl->ray_lut.resize(2 * static_cast<size_t>(cam.width) * cam.height);
-    for (int v = 0; v < cam.height; ++v)
-      for (int u = 0; u < cam.width; ++u)
+    impl->ray_lut.resize(2 * static_cast<size_t>(impl->rw) * impl->rh);
+    for (int j = 0; j < impl->rh; ++j)
+      for (int i = 0; i < impl->rw; ++i)
       {
-        const Eigen::Vector2d n = cam.normalize(cv::Point2d(u, v));
-        float* p = &impl->ray_lut[2 * (static_cast<size_t>(v) * cam.width + u)];
+        const Eigen::Vector2d n = cam.normalize(cv::Point2d(impl->sub * i + offset, impl->sub * j + offset));
+        float* p = &impl->ray_lut[2 * (static_cast<size_t>(j) * impl->rw + i)];
         p[0] = static_cast<float>(n.x());
         p[1] = static_cast<float>(n.y());
       }
   }
+  // Bilinear upsampling of the samples, clamped at the borders.
+  auto upsample = [&](int n, int samples, std::vector<int>* i0, std::vector<int>* i1, std::vector<float>* w)
+  {
+    i0->resize(n);
+    i1->resize(n);
+    w->resize(n);
+    for (int u = 0; u < n; ++u)
+    {
+      const double x = (u - offset) / impl->sub;
+      int a = static_cast<int>(std::floor(x));
+      double f = x - a;
+      if (a < 0)
+      {
+        a = 0;
+        f = 0.0;
+      }
+      if (a >= samples - 1)
+      {
+        a = samples - 1;
+        f = 0.0;
+      }
+      (*i0)[u] = a;
+      (*i1)[u] = std::min(a + 1, samples - 1);
+      (*w)[u] = static_cast<float>(f);
+    }
+  };
+  upsample(cam.width, impl->rw, &impl->up_i0, &impl->up_i1, &impl->up_wx);
+  upsample(cam.height, impl->rh, &impl->up_j0, &impl->up_j1, &impl->up_wy);
 
   // Clutter on the rock surface, fixed in the rock frame.
   std::mt19937 rng(seed * 2654435761u + 17u);
@@ -562,10 +621,22 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl_ = impl;
 }
 
+double LightingConfig::sceneDotToSunRatio(RadiometryModel model)
+{
+  // analyseScene() integrates spectra: compute each model once.
+  static const double study = dotToSunRatio(SceneInputs(), RadiometryModel::kStudyAsStated,
+                                            kReferenceBeamSigmaRad * kReferenceDistanceM);
+  static const double corrected =
+      dotToSunRatio(SceneInputs(), RadiometryModel::kCorrected, kReferenceBeamSigmaRad * kReferenceDistanceM);
+  return model == RadiometryModel::kStudyAsStated ? study : corrected;
+}
+
 void Simulator::updateLive(const SimulatorConfig& config)
 {
   SimulatorConfig c = config_;
   c.lighting = config.lighting;
+  c.lighting.sun_direction = config_.lighting.sun_direction;  // baked into the rock's shading
+  c.lighting.sky_ambient = config_.lighting.sky_ambient;
   c.motion = config.motion;
   c.sensor.read_noise_dn = config.sensor.read_noise_dn;
   c.sensor.shot_noise = config.sensor.shot_noise;
@@ -671,34 +742,75 @@ Eigen::Matrix<double, 2, 3> projectionJacobian(const CameraModel& cam, const Eig
   return J;
 }
 
-// Adds an image-space Gaussian of covariance S (px^2) centred at c with
-// per-channel amplitudes amp[3] into a CV_32FC3 image, within +-5 sigma.
-void addGaussian(cv::Mat* img, const cv::Point2d& c, const Eigen::Matrix2d& S, const double amp[3])
+// An image-space Gaussian (inverse covariance a, b, c in px^-2 about the
+// centre cx, cy), cut where q = a dx^2 + 2 b dx dy + c dy^2 exceeds q_max:
+// a projector dot (added) or a clutter patch (blended over the rock).
+struct Splat
+{
+  double cx = 0.0, cy = 0.0;
+  double a = 0.0, b = 0.0, c = 0.0;
+  double q_max = 0.0;
+  int v0 = 0, v1 = -1;    // rows it touches (inclusive)
+  float value[3] = {0.0f, 0.0f, 0.0f};  // B, G, R amplitude (dot) or radiance (patch)
+  bool blend = false;     // patch: out = (1 - w) out + w value
+  bool flat_top = false;  // patch: w = min(1, 2.5 g), a soft-edged disc
+};
+
+// Sets the inverse covariance and the rows of a splat of covariance S (px^2);
+// false when it is degenerate or outside the image.
+bool setSplatShape(Splat* sp, const Eigen::Matrix2d& S, double q_max, int height)
 {
   const double det = S.determinant();
-  if (!(det > 0.0))
-    return;
+  if (!(det > 0.0) || !std::isfinite(sp->cx) || !std::isfinite(sp->cy))
+    return false;
   const Eigen::Matrix2d Si = S.inverse();
-  const double lmax = 0.5 * (S.trace() + std::sqrt(std::max(0.0, S.trace() * S.trace() - 4.0 * det)));
-  const double half = std::ceil(5.0 * std::sqrt(lmax));
-  const int u0 = std::max(0, static_cast<int>(std::floor(c.x - half)));
-  const int u1 = std::min(img->cols - 1, static_cast<int>(std::ceil(c.x + half)));
-  const int v0 = std::max(0, static_cast<int>(std::floor(c.y - half)));
-  const int v1 = std::min(img->rows - 1, static_cast<int>(std::ceil(c.y + half)));
-  for (int v = v0; v <= v1; ++v)
+  sp->a = Si(0, 0);
+  sp->b = Si(0, 1);
+  sp->c = Si(1, 1);
+  sp->q_max = q_max;
+  // The ellipse q <= q_max spans +-sqrt(q_max S_yy) rows.
+  const double half = std::sqrt(q_max * S(1, 1));
+  sp->v0 = static_cast<int>(std::max(0.0, std::ceil(sp->cy - half)));
+  sp->v1 = static_cast<int>(std::min(height - 1.0, std::floor(sp->cy + half)));
+  return sp->v0 <= sp->v1;
+}
+
+// Applies a splat to row v (CV_32FC3 pixels, `width` of them). The pixels of
+// the row inside q <= q_max solve a quadratic; along them exp(-q/2) follows
+// the recurrence g(u+1) = g(u) r(u), r(u+1) = r(u) exp(-a), three exp() per
+// row instead of one per pixel (S always holds the pixel box, so a <= 12 and
+// the factors stay far from under- or overflow).
+void applySplatRow(const Splat& sp, int v, int width, float* row)
+{
+  const double dy = v - sp.cy;
+  const double disc = sp.b * sp.b * dy * dy - sp.a * (sp.c * dy * dy - sp.q_max);
+  if (!(disc >= 0.0))
+    return;
+  const double root = std::sqrt(disc);
+  const double ua = std::max(0.0, std::ceil(sp.cx + (-sp.b * dy - root) / sp.a));
+  const double ub = std::min(width - 1.0, std::floor(sp.cx + (-sp.b * dy + root) / sp.a));
+  if (!(ua <= ub))
+    return;
+  const int u0 = static_cast<int>(ua), u1 = static_cast<int>(ub);
+  const double dx0 = u0 - sp.cx;
+  double g = std::exp(-0.5 * (sp.a * dx0 * dx0 + 2.0 * sp.b * dx0 * dy + sp.c * dy * dy));
+  double r = std::exp(-0.5 * (sp.a * (2.0 * dx0 + 1.0) + 2.0 * sp.b * dy));
+  const double k = std::exp(-sp.a);
+  float* px = row + 3 * u0;
+  if (!sp.blend)
   {
-    float* row = img->ptr<float>(v);
-    const double dy = v - c.y;
-    for (int u = u0; u <= u1; ++u)
-    {
-      const double dx = u - c.x;
-      const double q = Si(0, 0) * dx * dx + 2.0 * Si(0, 1) * dx * dy + Si(1, 1) * dy * dy;
-      if (q > 50.0)
-        continue;
-      const double g = std::exp(-0.5 * q);
+    for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
       for (int ch = 0; ch < 3; ++ch)
-        row[3 * u + ch] += static_cast<float>(amp[ch] * g);
-    }
+        px[ch] += static_cast<float>(sp.value[ch] * g);
+    return;
+  }
+  for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
+  {
+    const double w = sp.flat_top ? std::min(1.0, 2.5 * g) : g;
+    if (w < 1e-3)
+      continue;
+    for (int ch = 0; ch < 3; ++ch)
+      px[ch] = static_cast<float>((1.0 - w) * px[ch] + w * sp.value[ch]);
   }
 }
 
@@ -709,9 +821,10 @@ SimFrame Simulator::render(double t) const
   const Impl& im = *impl_;
   const CameraModel& cam = config_.sensor.camera;
   const LightingConfig& light = config_.lighting;
+  const SensorConfig& sc = config_.sensor;
   const int W = cam.width, H = cam.height;
   const bool lut = !im.ray_lut.empty();
-  const bool vignetting = config_.sensor.natural_vignetting;
+  const bool vignetting = sc.natural_vignetting;
 
   SimFrame frame;
   frame.t = t;
@@ -722,180 +835,23 @@ SimFrame Simulator::render(double t) const
   const Eigen::Vector3d o = T_rc.translation();
   const double sun = light.sun_level * LightingConfig::kSunFullScaleDn * light.exposure;
 
-  auto normalized = [&](int u, int v, double* x, double* y)
+  // Normalised image coordinates of rock sample (i, j).
+  const int Wr = im.rw, Hr = im.rh;
+  const double sample_offset = 0.5 * (im.sub - 1);
+  auto normalized = [&](int i, int j, double* x, double* y)
   {
     if (lut)
     {
-      const float* p = &im.ray_lut[2 * (static_cast<size_t>(v) * W + u)];
+      const float* p = &im.ray_lut[2 * (static_cast<size_t>(j) * Wr + i)];
       *x = p[0];
       *y = p[1];
     }
     else
     {
-      *x = (u - cam.cx) / cam.fx;
-      *y = (v - cam.cy) / cam.fy;
+      *x = (im.sub * i + sample_offset - cam.cx) / cam.fx;
+      *y = (im.sub * j + sample_offset - cam.cy) / cam.fy;
     }
   };
-
-  // --- Rock pixels -------------------------------------------------------
-  cv::Mat lin(H, W, CV_32FC3);
-  const int ncx = (W - 1 + kCoarseStep - 1) / kCoarseStep + 1;
-  const int ncy = (H - 1 + kCoarseStep - 1) / kCoarseStep + 1;
-  std::vector<double> coarse(static_cast<size_t>(ncx) * ncy, kNaN);
-  auto coarse_pos = [&](int i, int n) { return std::min(i * kCoarseStep, n - 1); };
-  // Rows are independent (and the noise below is seeded per row), so the
-  // passes run in parallel with the same result for any thread count.
-  if (sun > 0.0)
-  {
-    cv::parallel_for_(cv::Range(0, ncy),
-                      [&](const cv::Range& range)
-                      {
-                        for (int j = range.start; j < range.end; ++j)
-                        {
-                          for (int i = 0; i < ncx; ++i)
-                          {
-                            double x, y, s;
-                            bool wall;
-                            normalized(coarse_pos(i, W), coarse_pos(j, H), &x, &y);
-                            const Eigen::Vector3d d = R * Eigen::Vector3d(x, y, 1.0);
-                            if (im.cast(o, d, &s, &wall) && !wall)
-                              coarse[static_cast<size_t>(j) * ncx + i] = s;
-                          }
-                        }
-                      });
-  }
-
-  auto shade_pixel = [&](float* out, double hx, double hy, double xn, double yn, bool wall)
-  {
-    float rad[3];
-    im.lookup3(im.sunlit, hx, hy, rad);
-    float scale = static_cast<float>(sun);
-    if (wall)
-      scale *= 0.5f;  // side walls face away from the sun more often than not
-    if (vignetting)
-    {
-      const double q = 1.0 + xn * xn + yn * yn;
-      scale *= static_cast<float>(1.0 / (q * q));
-    }
-    for (int c = 0; c < 3; ++c)
-      out[c] = rad[c] * scale;
-  };
-  auto background = [&](float* out, double xn, double yn)
-  {
-    double scale = sun * (kSkyAmbient + 0.5);
-    if (vignetting)
-    {
-      const double q = 1.0 + xn * xn + yn * yn;
-      scale /= q * q;
-    }
-    for (int c = 0; c < 3; ++c)
-      out[c] = static_cast<float>(kBackgroundBgr[c] * scale);
-  };
-
-  // Fast path, inlined by hand: this loop is most of the frame time.
-  const double ic = 1.0 / im.cell;
-  const float* hg = im.h.data();
-  const float* sl = im.sunlit.data();
-  const int stride = im.nx + 1;
-  auto rock_rows = [&](const cv::Range& range)
-  {
-    for (int v = range.start; v < range.end; ++v)
-    {
-      float* row = lin.ptr<float>(v);
-      const int j = std::min(v / kCoarseStep, ncy - 2);
-      const int v0 = coarse_pos(j, H), v1 = coarse_pos(j + 1, H);
-      const double fy = v1 > v0 ? static_cast<double>(v - v0) / (v1 - v0) : 0.0;
-      for (int u = 0; u < W; ++u)
-      {
-        const int i = std::min(u / kCoarseStep, ncx - 2);
-        const int u0 = coarse_pos(i, W), u1 = coarse_pos(i + 1, W);
-        const double fx = u1 > u0 ? static_cast<double>(u - u0) / (u1 - u0) : 0.0;
-        const double* c0 = &coarse[static_cast<size_t>(j) * ncx + i];
-        const double* c1 = c0 + ncx;
-        double xn, yn;
-        normalized(u, v, &xn, &yn);
-        const double dx = R(0, 0) * xn + R(0, 1) * yn + R(0, 2);
-        const double dy = R(1, 0) * xn + R(1, 1) * yn + R(1, 2);
-        const double dz = R(2, 0) * xn + R(2, 1) * yn + R(2, 2);
-        const double smin = std::min(std::min(c0[0], c0[1]), std::min(c1[0], c1[1]));
-        const double smax = std::max(std::max(c0[0], c0[1]), std::max(c1[0], c1[1]));
-        bool done = false;
-        // NaN corners fail this test: misses and edges take the robust path.
-        if (smax - smin <= kCoarseSpreadM)
-        {
-          double s = (1 - fy) * ((1 - fx) * c0[0] + fx * c0[1]) + fy * ((1 - fx) * c1[0] + fx * c1[1]);
-          // Newton from the interpolated depth; one step is enough almost
-          // everywhere (the next one would move the point by < 1e-4 m), a
-          // large first step asks for more.
-          bool ok = true;
-          for (int n = 0; n < 4; ++n)
-          {
-            const double gxf = (o.x() + s * dx - im.x0) * ic, gyf = (o.y() + s * dy - im.y0) * ic;
-            if (!(gxf >= 0.0 && gyf >= 0.0 && gxf < im.nx && gyf < im.ny))
-            {
-              ok = false;
-              break;
-            }
-            const int ci = static_cast<int>(gxf), cj = static_cast<int>(gyf);
-            const double tx = gxf - ci, ty = gyf - cj;
-            const float* r0 = hg + cj * stride + ci;
-            const double h00 = r0[0], h10 = r0[1], h01 = r0[stride], h11 = r0[stride + 1];
-            const double a = h00 + tx * (h10 - h00), b = h01 + tx * (h11 - h01);
-            const double gap = a + ty * (b - a) - (o.z() + s * dz);
-            const double slope = (((h10 - h00) * (1.0 - ty) + (h11 - h01) * ty) * dx + (b - a) * dy) * ic - dz;
-            if (!(slope < -1e-6) || std::abs(gap) > 0.05)
-            {
-              ok = false;
-              break;
-            }
-            const double step = gap / slope;
-            s -= step;
-            if (std::abs(step) < 5e-4)
-              break;
-            if (n == 3)
-              ok = false;
-          }
-          const double px = o.x() + s * dx, py = o.y() + s * dy;
-          if (ok && im.inside(px, py))
-          {
-            const double gxf = std::min((px - im.x0) * ic, im.nx - 1e-9),
-                         gyf = std::min((py - im.y0) * ic, im.ny - 1e-9);
-            const int ci = static_cast<int>(gxf), cj = static_cast<int>(gyf);
-            const float tx = static_cast<float>(gxf - ci), ty = static_cast<float>(gyf - cj);
-            const float* p00 = sl + 3 * (cj * stride + ci);
-            const float* p01 = p00 + 3 * stride;
-            float scale = static_cast<float>(sun);
-            if (vignetting)
-            {
-              const double q = 1.0 + xn * xn + yn * yn;
-              scale *= static_cast<float>(1.0 / (q * q));
-            }
-            const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
-            const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
-            float* out = row + 3 * u;
-            for (int c = 0; c < 3; ++c)
-              out[c] = w00 * p00[c] + w10 * p00[3 + c] + w01 * p01[c] + w11 * p01[3 + c];
-            done = true;
-          }
-        }
-        if (!done)
-        {
-          double s;
-          bool wall;
-          const Eigen::Vector3d d(dx, dy, dz);
-          if (im.cast(o, d, &s, &wall))
-            shade_pixel(row + 3 * u, o.x() + s * dx, o.y() + s * dy, xn, yn, wall);
-          else
-            background(row + 3 * u, xn, yn);
-        }
-      }
-    }
-  };
-  if (sun > 0.0)
-    cv::parallel_for_(cv::Range(0, H), rock_rows);
-  if (!(sun > 0.0))
-    lin.setTo(cv::Scalar::all(0.0));
-
   auto occluded = [&](const Eigen::Vector3d& X_rock)
   {
     const Eigen::Vector3d d = X_rock - o;
@@ -914,6 +870,11 @@ SimFrame Simulator::render(double t) const
   };
   const double pixel_box_var = 1.0 / 12.0;
 
+  // The frame is rendered row by row in one pass (rock, clutter, dots, noise,
+  // quantisation in a row buffer that stays in cache). Clutter patches and
+  // dots are prepared first as splats, in the order they apply to a pixel.
+  std::vector<Splat> splats;
+
   // --- Clutter (reflectance patches on the rock, lit by the sun) --------
   if (sun > 0.0)
   {
@@ -931,25 +892,17 @@ SimFrame Simulator::render(double t) const
       const Eigen::Matrix3d Ss = item.radius_m * item.radius_m * (Eigen::Matrix3d::Identity() - n * n.transpose());
       const Eigen::Matrix<double, 2, 3> J = projectionJacobian(cam, X);
       const Eigen::Matrix2d S = J * Ss * J.transpose() + pixel_box_var * Eigen::Matrix2d::Identity();
-      const Eigen::Matrix2d Si = S.inverse();
-      const double shade = (std::max(0.0, n_rock.dot(im.sun_dir)) + kSkyAmbient) * sun * vignette_at(X);
-      const double half = std::ceil(4.0 * std::sqrt(S.trace()));
-      for (int v = std::max(0, static_cast<int>(p.y - half)); v <= std::min(H - 1, static_cast<int>(p.y + half)); ++v)
-      {
-        float* row = lin.ptr<float>(v);
-        for (int u = std::max(0, static_cast<int>(p.x - half)); u <= std::min(W - 1, static_cast<int>(p.x + half)); ++u)
-        {
-          const double du = u - p.x, dv = v - p.y;
-          const double q = Si(0, 0) * du * du + 2.0 * Si(0, 1) * du * dv + Si(1, 1) * dv * dv;
-          double w = std::exp(-0.5 * q);
-          if (item.flat_top)
-            w = std::min(1.0, 2.5 * w);
-          if (w < 1e-3)
-            continue;
-          for (int c = 0; c < 3; ++c)
-            row[3 * u + c] = static_cast<float>((1.0 - w) * row[3 * u + c] + w * item.refl[c] * shade);
-        }
-      }
+      const double shade = (std::max(0.0, n_rock.dot(im.sun_dir)) + im.sky) * sun * vignette_at(X);
+      Splat sp;
+      sp.cx = p.x;
+      sp.cy = p.y;
+      sp.blend = true;
+      sp.flat_top = item.flat_top;
+      for (int c = 0; c < 3; ++c)
+        sp.value[c] = static_cast<float>(item.refl[c] * shade);
+      // Patches end where their weight drops below 1e-3.
+      if (setSplatShape(&sp, S, -2.0 * std::log(item.flat_top ? 1e-3 / 2.5 : 1e-3), H))
+        splats.push_back(sp);
     }
   }
 
@@ -960,7 +913,6 @@ SimFrame Simulator::render(double t) const
   frame.blur_sigma_px.assign(nb, kNaN);
   frame.visible.assign(nb, 0);
   frame.peak_dn.assign(nb, 0.0);
-  const SensorConfig& sc = config_.sensor;
   // Diffraction: Gaussian approximation of the Airy core, sigma = 0.42 lambda N
   // with the working f-number N = image distance / aperture.
   const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
@@ -1013,41 +965,342 @@ SimFrame Simulator::render(double t) const
     const double peak = energy / (2.0 * kPi * std::sqrt(S.determinant()));
     frame.peak_dn[b] = peak;
     frame.blur_sigma_px[b] = std::sqrt(0.5 * S.trace());
-    const double amp[3] = {peak * kDotResponseBgr[0], peak * kDotResponseBgr[1], peak * kDotResponseBgr[2]};
-    addGaussian(&lin, p, S, amp);
+    Splat sp;
+    sp.cx = p.x;
+    sp.cy = p.y;
+    for (int c = 0; c < 3; ++c)
+      sp.value[c] = static_cast<float>(peak * kDotResponseBgr[c]);
+    if (peak > 0.0 && setSplatShape(&sp, S, 50.0, H))  // exp(-25): below any DN
+      splats.push_back(sp);
   }
 
-  // --- Noise and quantisation ---------------------------------------------
-  if (config_.keep_linear)
-    frame.linear = lin.clone();
-  const std::vector<float>& table = normalTable();
-  const float read_var = static_cast<float>(sc.read_noise_dn * sc.read_noise_dn);
-  const float gain = sc.shot_noise ? static_cast<float>(sc.gain_dn_per_electron) : 0.0f;
-  if (read_var > 0.0f || gain > 0.0f)
+  // Splats per band of rows, in order.
+  constexpr int kBand = 16;
+  std::vector<std::vector<int>> band_splats((H + kBand - 1) / kBand);
+  for (size_t k = 0; k < splats.size(); ++k)
+    for (int band = splats[k].v0 / kBand; band <= splats[k].v1 / kBand; ++band)
+      band_splats[band].push_back(static_cast<int>(k));
+
+  // --- Rock: robust ray casts on a coarse pixel lattice --------------------
+  const int ncx = (Wr - 1 + kCoarseStep - 1) / kCoarseStep + 1;
+  const int ncy = (Hr - 1 + kCoarseStep - 1) / kCoarseStep + 1;
+  const bool lattice = ncx >= 2 && ncy >= 2;
+  std::vector<double> coarse(static_cast<size_t>(ncx) * ncy, kNaN);
+  auto coarse_pos = [&](int i, int n) { return std::min(i * kCoarseStep, n - 1); };
+  if (sun > 0.0 && lattice)
   {
-    uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(config_.noise_seed) << 32) ^ doubleBits(t);
-    const uint64_t frame_key = splitmix64(&frame_state);
-    cv::parallel_for_(cv::Range(0, H),
+    cv::parallel_for_(cv::Range(0, ncy),
                       [&](const cv::Range& range)
                       {
-                        for (int v = range.start; v < range.end; ++v)
+                        for (int j = range.start; j < range.end; ++j)
                         {
-                          uint64_t state = frame_key ^ (0xD1B54A32D192ED03ull * static_cast<uint64_t>(v + 1));
-                          float* px = lin.ptr<float>(v);
-                          for (int u = 0; u < 3 * W; u += 3)
+                          for (int i = 0; i < ncx; ++i)
                           {
-                            const uint64_t r = splitmix64(&state);
-                            for (int c = 0; c < 3; ++c)
-                            {
-                              const float x = std::max(px[u + c], 0.0f);
-                              px[u + c] = x + std::sqrt(x * gain + read_var) * table[(r >> (16 * c)) & 0xFFFF];
-                            }
+                            double x, y, s;
+                            bool wall;
+                            normalized(coarse_pos(i, Wr), coarse_pos(j, Hr), &x, &y);
+                            const Eigen::Vector3d d = R * Eigen::Vector3d(x, y, 1.0);
+                            if (im.cast(o, d, &s, &wall) && !wall)
+                              coarse[static_cast<size_t>(j) * ncx + i] = s;
                           }
                         }
                       });
   }
-  // Rounding and clipping to 8 bits, vectorised by OpenCV.
-  lin.convertTo(frame.image, CV_8UC3);
+
+  // Robust path of one pixel: its own ray cast, in double.
+  auto robust_pixel = [&](int u, int v, float* out)
+  {
+    double xn, yn;
+    normalized(u, v, &xn, &yn);
+    const Eigen::Vector3d d = R * Eigen::Vector3d(xn, yn, 1.0);
+    double scale = sun;
+    if (vignetting)
+    {
+      const double q = 1.0 + xn * xn + yn * yn;
+      scale /= q * q;
+    }
+    double s;
+    bool wall;
+    if (im.cast(o, d, &s, &wall))
+    {
+      float rad[3];
+      im.lookup3(im.sunlit, o.x() + s * d.x(), o.y() + s * d.y(), rad);
+      if (wall)
+        scale *= 0.5;  // side walls face away from the sun more often than not
+      for (int c = 0; c < 3; ++c)
+        out[c] = static_cast<float>(rad[c] * scale);
+    }
+    else
+    {
+      for (int c = 0; c < 3; ++c)
+        out[c] = static_cast<float>(kBackgroundBgr[c] * (im.sky + 0.5) * scale);
+    }
+  };
+
+  // Fast path: the depth interpolated in a lattice cell whose corners agree,
+  // refined by Newton on the bilinear height field, in float (1e-7 m is far
+  // below the 4 mm texture cell); everything else takes the robust path.
+  struct RowScratch
+  {
+    std::vector<float> s, dx, dy, dz, vig;
+    std::vector<uint8_t> state;
+    explicit RowScratch(int n) : s(n), dx(n), dy(n), dz(n), vig(n), state(n) {}
+  };
+  auto rock_row = [&](int v, float* row, RowScratch* scratch)
+  {
+    // Locals, not captures: the stores to row would otherwise force a reload
+    // of every captured constant after each pixel (they might alias).
+    const float Rf[9] = {static_cast<float>(R(0, 0)), static_cast<float>(R(0, 1)), static_cast<float>(R(0, 2)),
+                         static_cast<float>(R(1, 0)), static_cast<float>(R(1, 1)), static_cast<float>(R(1, 2)),
+                         static_cast<float>(R(2, 0)), static_cast<float>(R(2, 1)), static_cast<float>(R(2, 2))};
+    const float ox = static_cast<float>(o.x()), oy = static_cast<float>(o.y()), oz = static_cast<float>(o.z());
+    const float ic = static_cast<float>(1.0 / im.cell);
+    const float gx0 = static_cast<float>(im.x0), gy0 = static_cast<float>(im.y0);
+    const float nxf = static_cast<float>(im.nx), nyf = static_cast<float>(im.ny);
+    const float half_w = static_cast<float>(im.half_w), half_h = static_cast<float>(im.half_h);
+    const float sunf = static_cast<float>(sun);
+    const float ifx = static_cast<float>(im.sub / cam.fx);
+    const float fcx = static_cast<float>((cam.cx - sample_offset) / im.sub);
+    const float* hs = im.hs.data();
+    const int stride = im.nx + 1;
+    const bool vig = vignetting, use_lut = lut;
+    const int nx = im.nx, ny = im.ny;
+    if (!lattice)
+    {
+      for (int u = 0; u < Wr; ++u)
+        robust_pixel(u, v, row + 3 * u);
+      return;
+    }
+    const int j = std::min(v / kCoarseStep, ncy - 2);
+    const int cv0 = coarse_pos(j, Hr), cv1 = coarse_pos(j + 1, Hr);
+    const double fy = cv1 > cv0 ? static_cast<double>(v - cv0) / (cv1 - cv0) : 0.0;
+    const float yn_row = static_cast<float>((im.sub * v + sample_offset - cam.cy) / cam.fy);
+    const float* lut_row = use_lut ? &im.ray_lut[2 * static_cast<size_t>(v) * Wr] : nullptr;
+    float* S = scratch->s.data();
+    float* DX = scratch->dx.data();
+    float* DY = scratch->dy.data();
+    float* DZ = scratch->dz.data();
+    float* VG = scratch->vig.data();
+    uint8_t* state = scratch->state.data();  // 0 converged, 1 more Newton, 2 robust
+    // Simple passes over the row with few, predictable branches, so that the
+    // samples' latency chains (load, divide) overlap.
+    for (int i = 0; i + 1 < ncx; ++i)
+    {
+      const int u0 = coarse_pos(i, Wr), u1 = coarse_pos(i + 1, Wr);
+      const int uend = i + 2 == ncx ? u1 : u1 - 1;
+      const double* c0 = &coarse[static_cast<size_t>(j) * ncx + i];
+      const double* c1 = c0 + ncx;
+      const double smin = std::min(std::min(c0[0], c0[1]), std::min(c1[0], c1[1]));
+      const double smax = std::max(std::max(c0[0], c0[1]), std::max(c1[0], c1[1]));
+      // NaN corners fail this test: misses and edges take the robust path.
+      const bool smooth = smax - smin <= kCoarseSpreadM;
+      const float sa = smooth ? static_cast<float>(c0[0] + fy * (c1[0] - c0[0])) : 1.0f;
+      const float sd = smooth ? static_cast<float>(c0[1] + fy * (c1[1] - c0[1])) - sa : 0.0f;
+      const float inv_len = u1 > u0 ? 1.0f / static_cast<float>(u1 - u0) : 0.0f;
+      for (int u = u0; u <= uend; ++u)
+      {
+        S[u] = sa + static_cast<float>(u - u0) * inv_len * sd;
+        state[u] = smooth ? 0 : 2;
+      }
+    }
+    for (int u = 0; u < Wr; ++u)
+    {
+      const float xn = use_lut ? lut_row[2 * u] : (static_cast<float>(u) - fcx) * ifx;
+      const float yn = use_lut ? lut_row[2 * u + 1] : yn_row;
+      DX[u] = Rf[0] * xn + Rf[1] * yn + Rf[2];
+      DY[u] = Rf[3] * xn + Rf[4] * yn + Rf[5];
+      DZ[u] = Rf[6] * xn + Rf[7] * yn + Rf[8];
+      const float q = 1.0f + xn * xn + yn * yn;
+      VG[u] = vig ? sunf / (q * q) : sunf;
+    }
+    // Newton on the bilinear height field from the interpolated depth, in
+    // float (1e-7 m is far below the 4 mm texture cell). One step is enough
+    // almost everywhere (the next would move the point by < 1e-4 m).
+    auto newton = [&](int u, float s, float* step_out)
+    {
+      const float dx = DX[u], dy = DY[u], dz = DZ[u];
+      const float gxf = (ox + s * dx - gx0) * ic, gyf = (oy + s * dy - gy0) * ic;
+      const bool inside = gxf >= 0.0f && gyf >= 0.0f && gxf < nxf && gyf < nyf;
+      const int ci = inside ? static_cast<int>(gxf) : 0, cj = inside ? static_cast<int>(gyf) : 0;
+      const float tx = gxf - ci, ty = gyf - cj;
+      const float* r0 = hs + 4 * (cj * stride + ci) + 3;
+      const float* r1 = r0 + 4 * stride;
+      const float h00 = r0[0], h10 = r0[4], h01 = r1[0], h11 = r1[4];
+      const float a = h00 + tx * (h10 - h00), b = h01 + tx * (h11 - h01);
+      const float gap = a + ty * (b - a) - (oz + s * dz);
+      const float slope = (((h10 - h00) * (1.0f - ty) + (h11 - h01) * ty) * dx + (b - a) * dy) * ic - dz;
+      const bool good = inside && slope < -1e-6f && std::abs(gap) <= 0.05f;
+      *step_out = good ? gap / slope : 0.0f;
+      return good;
+    };
+    for (int u = 0; u < Wr; ++u)
+    {
+      float step;
+      const bool good = newton(u, S[u], &step);
+      S[u] -= step;
+      const uint8_t next = good ? (std::abs(step) < 5e-4f ? 0 : 1) : 2;
+      state[u] = std::max(state[u], next);
+    }
+    for (int u = 0; u < Wr; ++u)
+    {
+      if (state[u] != 1)
+        continue;
+      state[u] = 2;  // unless it converges within three more steps
+      for (int n = 0; n < 3; ++n)
+      {
+        float step;
+        if (!newton(u, S[u], &step))
+          break;
+        S[u] -= step;
+        if (std::abs(step) < 5e-4f)
+        {
+          state[u] = 0;
+          break;
+        }
+      }
+    }
+    for (int u = 0; u < Wr; ++u)
+    {
+      float* out = row + 3 * u;
+      const float px = ox + S[u] * DX[u], py = oy + S[u] * DY[u];
+      if (state[u] != 0 || !(std::abs(px) <= half_w && std::abs(py) <= half_h))
+      {
+        robust_pixel(u, v, out);
+        continue;
+      }
+      const float gxf = (px - gx0) * ic, gyf = (py - gy0) * ic;
+      const int ci = std::min(std::max(static_cast<int>(gxf), 0), nx - 1);
+      const int cj = std::min(std::max(static_cast<int>(gyf), 0), ny - 1);
+      const float tx = gxf - ci, ty = gyf - cj;
+      const float scale = VG[u];
+      const float* p00 = hs + 4 * (cj * stride + ci);
+      const float* p01 = p00 + 4 * stride;
+      const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
+      const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
+      // All four lanes (B, G, R, h) in one go; the fourth lands on the next
+      // pixel's B, which is written after it (rows have one float of slack).
+      for (int c = 0; c < 4; ++c)
+        out[c] = w00 * p00[c] + w10 * p00[4 + c] + w01 * p01[c] + w11 * p01[4 + c];
+    }
+  };
+
+  // --- One pass per row: rock, splats, noise, quantisation ----------------
+  // Rows are independent (the noise is seeded per row), so the pass runs in
+  // parallel with the same result for any thread count.
+  const std::vector<float>& table = normalTable();
+  const float read_var = static_cast<float>(sc.read_noise_dn * sc.read_noise_dn);
+  const float gain = sc.shot_noise ? static_cast<float>(sc.gain_dn_per_electron) : 0.0f;
+  const bool noisy = read_var > 0.0f || gain > 0.0f;
+  uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(config_.noise_seed) << 32) ^ doubleBits(t);
+  const uint64_t frame_key = splitmix64(&frame_state);
+  // Rock samples first (rows independent); the row pass interpolates them.
+  // Rows of 3 Wr floats plus one of slack; kept per thread between frames
+  // (a fresh 3 MB buffer per frame costs its page faults).
+  const size_t rock_stride = 3 * static_cast<size_t>(Wr) + 1;
+  static thread_local std::vector<float> rock_buffer;
+  if (sun > 0.0)
+    rock_buffer.resize(rock_stride * Hr);
+  // A plain pointer: inside the parallel body, rock_buffer would name the
+  // worker thread's own (empty) instance.
+  float* const rock = rock_buffer.data();
+  if (sun > 0.0)
+  {
+    cv::parallel_for_(cv::Range(0, Hr),
+                      [&](const cv::Range& range)
+                      {
+                        RowScratch scratch(Wr);
+                        for (int j = range.start; j < range.end; ++j)
+                          rock_row(j, rock + rock_stride * j, &scratch);
+                      });
+  }
+  // Bilinear upsampling: the two sample rows blended first (a plain loop that
+  // vectorises), then along the row; sub = 2 has fixed weights 1/4, 3/4.
+  const int n3 = 3 * W, nr3 = 3 * Wr;
+  auto rock_to_row = [&](int v, float* L, float* T)
+  {
+    const float* A = rock + rock_stride * im.up_j0[v];
+    if (im.sub == 1)
+    {
+      std::memcpy(L, A, sizeof(float) * n3);
+      return;
+    }
+    const float* B = rock + rock_stride * im.up_j1[v];
+    const float wy = im.up_wy[v];
+    for (int k = 0; k < nr3; ++k)
+      T[k] = A[k] + wy * (B[k] - A[k]);
+    if (im.sub == 2)
+    {
+      // Pixel 0 sits left of sample 0 (clamped); pixels 2i+1, 2i+2 lie at
+      // 1/4 and 3/4 between samples i and i+1; an even W ends on a clamp.
+      for (int c = 0; c < 3; ++c)
+        L[c] = T[c];
+      const int pairs = (W - 1) / 2;
+      for (int i = 0; i < pairs; ++i)
+      {
+        const float* t0 = T + 3 * i;
+        float* l = L + 3 * (2 * i + 1);
+        for (int c = 0; c < 3; ++c)
+        {
+          l[c] = 0.75f * t0[c] + 0.25f * t0[3 + c];
+          l[3 + c] = 0.25f * t0[c] + 0.75f * t0[3 + c];
+        }
+      }
+      for (int u = 1 + 2 * pairs; u < W; ++u)
+        for (int c = 0; c < 3; ++c)
+          L[3 * u + c] = T[3 * im.up_i0[u] + c] + im.up_wx[u] * (T[3 * im.up_i1[u] + c] - T[3 * im.up_i0[u] + c]);
+      return;
+    }
+    for (int u = 0; u < W; ++u)
+    {
+      const int a = 3 * im.up_i0[u], b = 3 * im.up_i1[u];
+      const float wx = im.up_wx[u];
+      for (int c = 0; c < 3; ++c)
+        L[3 * u + c] = T[a + c] + wx * (T[b + c] - T[a + c]);
+    }
+  };
+  if (config_.keep_linear)
+    frame.linear.create(H, W, CV_32FC3);
+  frame.image.create(H, W, CV_8UC3);
+  cv::parallel_for_(cv::Range(0, H),
+                    [&](const cv::Range& range)
+                    {
+                      std::vector<float> buf(n3 + 5), normal(n3 + 5), deviation(n3), blend(nr3);
+                      float* L = buf.data();
+                      float* N = normal.data();
+                      float* sd = deviation.data();
+                      for (int v = range.start; v < range.end; ++v)
+                      {
+                        if (sun > 0.0)
+                          rock_to_row(v, L, blend.data());
+                        else
+                          std::fill(buf.begin(), buf.end(), 0.0f);
+                        for (int k : band_splats[v / kBand])
+                          if (v >= splats[k].v0 && v <= splats[k].v1)
+                            applySplatRow(splats[k], v, W, L);
+                        if (config_.keep_linear)
+                          std::memcpy(frame.linear.ptr<float>(v), L, sizeof(float) * n3);
+                        if (noisy)
+                        {
+                          uint64_t state = frame_key ^ (0xD1B54A32D192ED03ull * static_cast<uint64_t>(v + 1));
+                          for (int k = 0; k < n3; k += 5)
+                          {
+                            const uint64_t r = splitmix64(&state);
+                            for (int q = 0; q < 5; ++q)
+                              N[k + q] = table[(r >> (12 * q)) & (kNormalTableSize - 1)];
+                          }
+                          // Simple loops that vectorise: clip, standard
+                          // deviation (shot + read), the noisy value.
+                          for (int k = 0; k < n3; ++k)
+                            L[k] = std::max(L[k], 0.0f);
+                          for (int k = 0; k < n3; ++k)
+                            sd[k] = L[k] * gain + read_var;
+                          cv::hal::sqrt32f(sd, sd, n3);
+                          for (int k = 0; k < n3; ++k)
+                            L[k] += sd[k] * N[k];
+                        }
+                        cv::Mat(1, n3, CV_32F, L).convertTo(cv::Mat(1, n3, CV_8U, frame.image.ptr<uint8_t>(v)), CV_8U);
+                      }
+                    });
   return frame;
 }
 

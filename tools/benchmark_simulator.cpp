@@ -1,5 +1,6 @@
 // Benchmark of the scene simulator: milliseconds per rendered 1024 x 1024
-// frame, single-threaded, for a few representative configurations.
+// frame for a few representative configurations, on one thread and on
+// OpenCV's default thread count (the CameraDriver's case).
 //
 // Usage: benchmark_simulator [frames=20] [output_dir]
 // With an output directory, the first frame of each case is written as PNG.
@@ -22,7 +23,7 @@ int main(int argc, char** argv)
 {
   const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 20;
   const std::string out_dir = argc > 2 ? argv[2] : "";
-  cv::setNumThreads(1);
+  const int default_threads = cv::getNumThreads();
 
   struct Case
   {
@@ -53,31 +54,38 @@ int main(int argc, char** argv)
     c.config.clutter.green_blobs = 10;
     cases.push_back(c);
   }
-  for (const Case& c : cases)
+  for (int threads : {1, default_threads})
   {
-    const auto t_build = std::chrono::steady_clock::now();
-    Simulator sim(c.config);
-    const double build_ms =
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_build).count();
-    int visible = 0;
-    const auto t0 = std::chrono::steady_clock::now();
-    const std::clock_t c0 = std::clock();
-    for (int i = 0; i < frames; ++i)
+    cv::setNumThreads(threads);
+    for (const Case& c : cases)
     {
-      const SimFrame f = sim.render(i / 30.0);
-      if (i == 0)
+      const auto t_build = std::chrono::steady_clock::now();
+      Simulator sim(c.config);
+      const double build_ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_build).count();
+      int visible = 0;
+      const auto t0 = std::chrono::steady_clock::now();
+      const std::clock_t c0 = std::clock();
+      for (int i = 0; i < frames; ++i)
       {
-        for (uint8_t v : f.visible)
-          visible += v;
-        if (!out_dir.empty())
-          cv::imwrite(out_dir + "/sim_" + c.name + ".png", f.image);
+        const SimFrame f = sim.render(i / 30.0);
+        if (i == 0)
+        {
+          for (uint8_t v : f.visible)
+            visible += v;
+          if (!out_dir.empty() && threads == 1)
+            cv::imwrite(out_dir + "/sim_" + c.name + ".png", f.image);
+        }
       }
+      const double ms =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / frames;
+      // CPU time as well (all threads): on a shared machine the wall clock
+      // includes waiting.
+      const double cpu_ms = 1000.0 * (std::clock() - c0) / CLOCKS_PER_SEC / frames;
+      std::cout << c.name << " (" << threads << (threads > 1 ? " threads" : " thread") << "): construction "
+                << build_ms << " ms, render " << ms << " ms/frame wall, " << cpu_ms << " ms/frame CPU (" << frames
+                << " frames, " << visible << " dots visible in frame 0)\n";
     }
-    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count() / frames;
-    // CPU time as well: on a shared machine the wall clock includes waiting.
-    const double cpu_ms = 1000.0 * (std::clock() - c0) / CLOCKS_PER_SEC / frames;
-    std::cout << c.name << ": construction " << build_ms << " ms, render " << ms << " ms/frame wall, " << cpu_ms
-              << " ms/frame CPU (" << frames << " frames, " << visible << " dots visible in frame 0)\n";
   }
   return 0;
 }

@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cctype>
 #include <chrono>
+#include <cstdio>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -207,7 +208,21 @@ private:
     c.projector.beam_sigma_rad = pnh.param("beam_sigma", c.projector.beam_sigma_rad);
     c.projector.power_scale = pnh.param("power_scale", c.projector.power_scale);
     c.lighting.sun_level = pnh.param("sun_level", c.lighting.sun_level);
-    c.lighting.dot_to_sun_ratio = pnh.param("dot_to_sun_ratio", c.lighting.dot_to_sun_ratio);
+    // The dot-versus-sun brightness comes from the scene analysis unless
+    // ~dot_to_sun_ratio overrides it (negative = not set).
+    radiometry_ = pnh.param<std::string>("radiometry", "study");
+    RadiometryModel model = RadiometryModel::kStudyAsStated;
+    if (!radiometryModel(radiometry_, &model))
+    {
+      NODELET_ERROR("CameraDriver: ~radiometry '%s' is neither 'study' nor 'corrected'; using 'study'",
+                    radiometry_.c_str());
+      radiometry_ = "study";
+      model = RadiometryModel::kStudyAsStated;
+      pnh.setParam("radiometry", radiometry_);
+    }
+    const double ratio = pnh.param("dot_to_sun_ratio", -1.0);
+    c.lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingConfig::sceneDotToSunRatio(model);
+    const std::string ratio_source = ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
     c.lighting.exposure = pnh.param("exposure", c.lighting.exposure);
     c.motion.jitter_translation_m = pnh.param("jitter_translation", c.motion.jitter_translation_m);
     c.motion.jitter_rotation_rad = pnh.param("jitter_rotation", c.motion.jitter_rotation_rad);
@@ -229,6 +244,7 @@ private:
       c.sensor.camera.distortion = DistortionModel::kPlumbBob;
       c.sensor.camera.D = D;
     }
+    c.rock_subsample = get_int("rock_subsample", c.rock_subsample);
     c.clutter.green_specks = get_int("clutter_specks", 0);
     c.clutter.olive_minerals = get_int("clutter_olive", 0);
     c.clutter.green_blobs = get_int("clutter_blobs", 0);
@@ -258,9 +274,12 @@ private:
     {
       const auto t0 = std::chrono::steady_clock::now();
       simulator_ = std::make_shared<const Simulator>(c);
-      NODELET_INFO("CameraDriver: simulator ready in %.0f ms (rock at %.2f m, relief %.2f m, %dx%d beams, sun %.2f)",
-                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(),
-                   c.rock.distance_m, c.rock.relief_m, c.projector.rows, c.projector.cols, c.lighting.sun_level);
+      NODELET_INFO(
+          "CameraDriver: simulator ready in %.0f ms (rock at %.2f m, relief %.2f m, %dx%d beams, sun %.2f, dot/sun "
+          "ratio %.4g%s)",
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(), c.rock.distance_m,
+          c.rock.relief_m, c.projector.rows, c.projector.cols, c.lighting.sun_level, c.lighting.dot_to_sun_ratio,
+          ratio_source.c_str());
     }
     catch (const std::exception& e)
     {
@@ -299,7 +318,17 @@ private:
     {
       SimulatorConfig c = simulator_->config();
       c.lighting.sun_level = config.sun_level;
-      c.lighting.dot_to_sun_ratio = config.dot_to_sun_ratio;
+      RadiometryModel model = RadiometryModel::kStudyAsStated;
+      if (!radiometryModel(config.radiometry, &model))
+      {
+        NODELET_ERROR("CameraDriver: radiometry '%s' is neither 'study' nor 'corrected'; keeping '%s'",
+                      config.radiometry.c_str(), radiometry_.c_str());
+        config.radiometry = radiometry_;
+        radiometryModel(radiometry_, &model);
+      }
+      radiometry_ = config.radiometry;
+      c.lighting.dot_to_sun_ratio =
+          config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingConfig::sceneDotToSunRatio(model);
       c.lighting.exposure = config.exposure;
       c.projector.power_scale = config.power_scale;
       c.motion.jitter_translation_m = config.jitter_translation;
@@ -321,6 +350,17 @@ private:
     }
     rate_ = config.rate;
     setExpectedRate(rate_);
+  }
+
+  static bool radiometryModel(const std::string& name, RadiometryModel* model)
+  {
+    if (name == "study")
+      *model = RadiometryModel::kStudyAsStated;
+    else if (name == "corrected")
+      *model = RadiometryModel::kCorrected;
+    else
+      return false;
+    return true;
   }
 
   void setExpectedRate(double rate)
@@ -419,6 +459,10 @@ private:
     uint64_t index = 0, index_base = 0;
     double t_base = 0.0, rate_base = currentRate();
     bool announced_end = false;
+    // Publish rate actually reached (rendering may not keep up): mean period
+    // between frames published on consecutive ticks.
+    ros::WallTime previous_publish;
+    bool consecutive = false;
     while (running_ && ros::ok())
     {
       const double rate = currentRate();
@@ -445,7 +489,10 @@ private:
       ++index;
       if (lazy_ && camera_pub_.getNumSubscribers() == 0 && gt_points_pub_.getNumSubscribers() == 0 &&
           gt_pose_pub_.getNumSubscribers() == 0 && gt_spots_pub_.getNumSubscribers() == 0)
+      {
+        consecutive = false;
         continue;
+      }
 
       std::shared_ptr<const Simulator> sim;
       {
@@ -495,7 +542,29 @@ private:
       pose->status = "ground truth, simulated t = " + std::to_string(t) + " s";
       gt_pose_pub_.publish(pose);
       gt_spots_pub_.publish(spots);
+
+      const ros::WallTime now = ros::WallTime::now();
+      if (consecutive)
+        noteFramePeriod((now - previous_publish).toSec(), rate, ms);
+      previous_publish = now;
+      consecutive = true;
     }
+  }
+
+  // Keeps a running mean of the publish period; when rendering cannot keep
+  // up, the loop publishes as fast as it can (no catch-up burst, see
+  // advance()) and says so.
+  void noteFramePeriod(double period_s, double rate, double render_ms)
+  {
+    double hz;
+    {
+      std::lock_guard<std::mutex> lock(status_mutex_);
+      mean_period_s_ = mean_period_s_ > 0.0 ? 0.9 * mean_period_s_ + 0.1 * period_s : period_s;
+      hz = 1.0 / mean_period_s_;
+    }
+    if (hz < 0.9 * rate)
+      NODELET_WARN_THROTTLE(30.0, "CameraDriver: rendering at %.1f Hz < requested %.1f Hz (%.1f ms per render)", hz,
+                            rate, render_ms);
   }
 
   // camera_info for a frame of a real source: the loaded calibration when it
@@ -784,14 +853,22 @@ private:
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   {
+    const double rate = currentRate();  // before status_mutex_: one lock at a time
     std::lock_guard<std::mutex> lock(status_mutex_);
     const bool recent_error = !last_error_.empty() && (ros::WallTime::now() - last_error_time_).toSec() < 10.0;
+    const double reached_hz = mean_period_s_ > 0.0 ? 1.0 / mean_period_s_ : 0.0;
+    char slow[128];
+    std::snprintf(slow, sizeof(slow), "rendering at %.1f Hz < requested %.1f Hz", reached_hz, rate);
     if (recent_error)
       stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, last_error_);
     else if (frames_published_ == 0)
       stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no frame published yet");
+    else if (source_ == "sim" && reached_hz > 0.0 && reached_hz < 0.9 * rate)
+      stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, slow);
     else
       stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "publishing");
+    if (source_ == "sim")
+      stat.add("publish rate reached (Hz)", reached_hz);
     stat.add("source", source_);
     stat.add("frame_id", frame_id_);
     stat.add("frames published", frames_published_);
@@ -803,6 +880,7 @@ private:
   }
 
   std::string source_, frame_id_, camera_info_url_;
+  std::string radiometry_ = "study";  // under config_mutex_ once running
   double rate_ = 30.0, duration_s_ = 0.0;
   bool lazy_ = true;
   bool calibrated_from_url_ = false;
@@ -827,6 +905,7 @@ private:
   ros::WallTime last_error_time_;
   uint64_t frames_published_ = 0;
   double processing_ms_ = 0.0;
+  double mean_period_s_ = 0.0;  // sim: running mean of the publish period
   cv::Size last_size_;
 
   std::atomic<bool> running_{false};
