@@ -109,12 +109,15 @@ private:
     SpotDetectorParams p;
     if (config.method == "baseline")
       p.method = SpotMethod::kBaseline;
+    else if (config.method == "fast")
+      p.method = SpotMethod::kFast;
     else
     {
-      if (config.method != "fast")
-        NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); using fast", config.method.c_str());
-      p.method = SpotMethod::kFast;
-      config.method = "fast";
+      // The last good value stays in force (the default before any).
+      p.method = params_.method;
+      const char* kept = p.method == SpotMethod::kBaseline ? "baseline" : "fast";
+      NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(), kept);
+      config.method = kept;
     }
     p.blur_kernel = config.blur_kernel;
     p.h_min = config.h_min;
