@@ -122,8 +122,11 @@ private:
     }
     if (c.assignment != "epipolar" && c.assignment != "sort")
     {
-      NODELET_WARN("Triangulator: unknown assignment '%s'; using epipolar", c.assignment.c_str());
-      c.assignment = "epipolar";
+      // The last good value stays in force (epipolar before any).
+      const std::string kept = config_.assignment == "sort" ? "sort" : "epipolar";
+      NODELET_WARN("Triangulator: unknown assignment '%s' (epipolar | sort); keeping %s", c.assignment.c_str(),
+                   kept.c_str());
+      c.assignment = kept;
     }
     config_ = c;
   }
