@@ -150,12 +150,15 @@ private:
       config.texture_min_features = config.texture_max_features;
     }
     PoseDeltaParams core;
-    core.mode = config.mode == "frame_to_frame" ? PoseDeltaMode::kFrameToFrame : PoseDeltaMode::kReference;
     if (config.mode != "frame_to_frame" && config.mode != "reference")
     {
-      NODELET_WARN("PoseDelta: unknown mode '%s'; using reference", config.mode.c_str());
-      config.mode = "reference";
+      // The last good value stays in force (reference before any).
+      std::lock_guard<std::mutex> lock(config_mutex_);
+      const char* kept = config_.mode == PoseDeltaMode::kFrameToFrame ? "frame_to_frame" : "reference";
+      NODELET_WARN("PoseDelta: unknown mode '%s' (reference | frame_to_frame); keeping %s", config.mode.c_str(), kept);
+      config.mode = kept;
     }
+    core.mode = config.mode == "frame_to_frame" ? PoseDeltaMode::kFrameToFrame : PoseDeltaMode::kReference;
     core.use_texture = config.use_texture;
     core.symmetric = config.symmetric;
     core.min_points = config.min_points;

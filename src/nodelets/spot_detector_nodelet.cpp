@@ -22,6 +22,7 @@
 #include "structured_light_stabilizer/SpotDetectorConfig.h"
 #include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/spot_detector.h"
+#include "drop_log.h"
 
 namespace structured_light_stabilizer
 {
@@ -108,12 +109,15 @@ private:
     SpotDetectorParams p;
     if (config.method == "baseline")
       p.method = SpotMethod::kBaseline;
+    else if (config.method == "fast")
+      p.method = SpotMethod::kFast;
     else
     {
-      if (config.method != "fast")
-        NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); using fast", config.method.c_str());
-      p.method = SpotMethod::kFast;
-      config.method = "fast";
+      // The last good value stays in force (the default before any).
+      p.method = params_.method;
+      const char* kept = p.method == SpotMethod::kBaseline ? "baseline" : "fast";
+      NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(), kept);
+      config.method = kept;
     }
     p.blur_kernel = config.blur_kernel;
     p.h_min = config.h_min;
@@ -211,12 +215,24 @@ private:
                    "bright rock are not rejected); use a colour camera for the real thing");
     }
     const size_t row_bytes = static_cast<size_t>(msg->width) * channelCount(format);
-    if (msg->width == 0 || msg->height == 0 || msg->step < row_bytes ||
-        msg->data.size() < static_cast<size_t>(msg->step) * (msg->height - 1) + row_bytes)
+    const std::string what = std::to_string(msg->width) + "x" + std::to_string(msg->height) + " " + msg->encoding;
+    if (msg->width == 0 || msg->height == 0)
     {
-      dropFrame("inconsistent image (" + std::to_string(msg->width) + "x" + std::to_string(msg->height) + " " +
-                msg->encoding + ", step " + std::to_string(msg->step) + ", " + std::to_string(msg->data.size()) +
-                " data bytes); frame dropped");
+      dropFrame("inconsistent image (" + what + "): empty; frame dropped");
+      return;
+    }
+    if (msg->step < row_bytes)
+    {
+      dropFrame("inconsistent image (" + what + "): step " + std::to_string(msg->step) + " < width * channels " +
+                std::to_string(row_bytes) + "; frame dropped");
+      return;
+    }
+    const size_t needed = static_cast<size_t>(msg->step) * (msg->height - 1) + row_bytes;
+    if (msg->data.size() < needed)
+    {
+      dropFrame("inconsistent image (" + what + ", step " + std::to_string(msg->step) + "): truncated, " +
+                std::to_string(msg->data.size()) + " data bytes of the " + std::to_string(needed) +
+                " needed; frame dropped");
       return;
     }
     // Zero copy: a header over the message's buffer, honouring its step.
@@ -256,26 +272,20 @@ private:
     }
   }
 
-  // Logs why a frame was dropped: a new reason at once, the same reason at
-  // most every 5 s (a stream of bad frames must not flood rosout).
+  // Logs why a frame was dropped: each kind of problem at once, then at most
+  // every 5 s (bad frames, even of alternating kinds, must not flood rosout).
   void dropFrame(const std::string& why)
   {
     ++dropped_;
-    const ros::WallTime now = ros::WallTime::now();
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    if (why != last_error_ || (now - last_error_time_).toSec() > 5.0)
+    int suppressed = 0;
+    if (drop_log_.shouldLog(why, &suppressed))
     {
       const std::string note =
-          suppressed_ > 0 ? " (" + std::to_string(suppressed_) + " more like the last one suppressed)" : "";
+          suppressed > 0 ? " (" + std::to_string(suppressed) + " more like it suppressed)" : "";
       NODELET_ERROR("SpotDetector: %s%s", why.c_str(), note.c_str());
-      last_error_ = why;
-      last_error_time_ = now;
-      suppressed_ = 0;
     }
-    else
-    {
-      ++suppressed_;
-    }
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    last_error_ = why;
   }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
@@ -334,8 +344,7 @@ private:
   double last_ms_ = 0.0, mean_ms_ = 0.0;
   int last_spots_ = 0, frames_ = 0;
   std::string last_error_;
-  ros::WallTime last_error_time_;
-  int suppressed_ = 0;
+  DropLog drop_log_;
   std::atomic<int> dropped_{0};
 };
 

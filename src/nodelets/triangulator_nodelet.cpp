@@ -24,6 +24,7 @@
 #include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/projector_calibration.h"
 #include "structured_light_stabilizer/triangulator.h"
+#include "drop_log.h"
 
 namespace structured_light_stabilizer
 {
@@ -121,8 +122,11 @@ private:
     }
     if (c.assignment != "epipolar" && c.assignment != "sort")
     {
-      NODELET_WARN("Triangulator: unknown assignment '%s'; using epipolar", c.assignment.c_str());
-      c.assignment = "epipolar";
+      // The last good value stays in force (epipolar before any).
+      const std::string kept = config_.assignment == "sort" ? "sort" : "epipolar";
+      NODELET_WARN("Triangulator: unknown assignment '%s' (epipolar | sort); keeping %s", c.assignment.c_str(),
+                   kept.c_str());
+      c.assignment = kept;
     }
     config_ = c;
   }
@@ -188,7 +192,7 @@ private:
     }
     catch (const std::exception& e)
     {
-      NODELET_ERROR_THROTTLE(5.0, "Triangulator: frame dropped: %s", e.what());
+      dropFrame(std::string("frame dropped: ") + e.what());
     }
   }
 
@@ -209,23 +213,22 @@ private:
       std::lock_guard<std::mutex> lock(state_mutex_);
       if (!calibration_error_.empty())
       {
-        NODELET_ERROR_THROTTLE(5.0, "Triangulator: %s; nothing published", calibration_error_.c_str());
+        dropFrame(calibration_error_ + "; nothing published");
         return;
       }
       info = info_;
     }
     if (!info)
     {
-      NODELET_ERROR_THROTTLE(5.0, "Triangulator: no camera_info received on %s yet; nothing published",
-                             getNodeHandle().resolveName("camera/camera_info").c_str());
+      dropFrame("no camera_info received on " + getNodeHandle().resolveName("camera/camera_info") +
+                " yet; nothing published");
       return;
     }
     if (info->width != msg->image_width || info->height != msg->image_height)
     {
-      NODELET_ERROR_THROTTLE(5.0,
-                             "Triangulator: camera_info is %ux%u but the spots come from a %ux%u image; frame "
-                             "dropped (wrong camera_info, or binning/ROI upstream)",
-                             info->width, info->height, msg->image_width, msg->image_height);
+      dropFrame("camera_info is " + std::to_string(info->width) + "x" + std::to_string(info->height) +
+                " but the spots come from a " + std::to_string(msg->image_width) + "x" +
+                std::to_string(msg->image_height) + " image; frame dropped (wrong camera_info, or binning/ROI upstream)");
       return;
     }
     const double age = std::abs((msg->header.stamp - info->header.stamp).toSec());
@@ -240,7 +243,7 @@ private:
     std::string err;
     if (!cameraModelFromInfo(*info, &model, &err))
     {
-      NODELET_ERROR_THROTTLE(5.0, "Triangulator: %s; frame dropped", err.c_str());
+      dropFrame(err + "; frame dropped");
       return;
     }
 
@@ -261,8 +264,8 @@ private:
       bad += !std::isfinite(s.x) || !std::isfinite(s.y);
     if (bad > 0)
     {
-      NODELET_ERROR_THROTTLE(5.0, "Triangulator: %zu of %zu centroids are NaN or infinite; frame dropped", bad,
-                             spots.size());
+      dropFrame(std::to_string(bad) + " of " + std::to_string(spots.size()) +
+                " centroids are NaN or infinite; frame dropped");
       std::lock_guard<std::mutex> lock(stats_mutex_);
       nan_frames_ += 1;
       return;
@@ -286,6 +289,17 @@ private:
     last_beams_ = cal.beamCount();
     last_ms_ = (ros::WallTime::now() - start).toSec() * 1e3;
     have_stats_ = true;
+  }
+
+  // Each kind of problem is logged at once, then at most every 5 s: a
+  // throttle per call site would hide a second, different camera_info fault.
+  void dropFrame(const std::string& why)
+  {
+    int suppressed = 0;
+    if (!drop_log_.shouldLog(why, &suppressed))
+      return;
+    const std::string note = suppressed > 0 ? " (" + std::to_string(suppressed) + " more like it suppressed)" : "";
+    NODELET_ERROR("Triangulator: %s%s", why.c_str(), note.c_str());
   }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
@@ -356,6 +370,7 @@ private:
   double last_ms_ = 0.0;
   bool have_stats_ = false;
   unsigned long nan_frames_ = 0;
+  DropLog drop_log_;
 };
 
 }  // namespace structured_light_stabilizer

@@ -215,7 +215,7 @@ TEST(ProjectorCalibrationFiles, FormsAndRefusals)
   {
     ProjectorCalibration cal;
     err.clear();
-    EXPECT_FALSE(loadProjectorCalibration(dir + "/bad/" + b.file, &cal, &err)) << b.file;
+    EXPECT_FALSE(loadProjectorCalibration(dir + "/bad/projector_" + b.file, &cal, &err)) << b.file;
     EXPECT_NE(err.find(b.must_mention), std::string::npos) << b.file << ": " << err;
     std::cout << "[ MEASURE ] " << b.file << " -> " << err << "\n";
   }
