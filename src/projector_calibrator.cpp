@@ -56,7 +56,7 @@ bool viewBeamIds(const BoardView& view, int rows, int cols, std::vector<int>* id
              " of them, not rows*cols = " + std::to_string(rows * cols) + " (cannot sort them into rows)";
     return false;
   }
-  const std::vector<int> order = sortIntoRows(view.spots, cols);
+  const std::vector<int> order = rowSortOrder(view.spots, cols);
   for (size_t k = 0; k < order.size(); ++k)
     (*ids)[order[k]] = static_cast<int>(k);
   return true;

@@ -9,6 +9,8 @@
 
 #include <Eigen/Dense>
 
+#include "structured_light_stabilizer/spot_detector.h"
+
 namespace structured_light_stabilizer
 {
 
@@ -146,19 +148,17 @@ bool triangulateBeam(const Eigen::Vector3d& camera_ray, const BeamRay& beam, Eig
   return std::isfinite(s) && std::isfinite(t);
 }
 
-std::vector<int> sortIntoRows(const Spots& spots, int cols)
+std::vector<int> rowSortOrder(const Spots& spots, int cols)
 {
-  std::vector<int> order(spots.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return spots[a].y < spots[b].y; });
-  if (cols <= 0)
-    return order;
-  for (size_t start = 0; start < order.size(); start += static_cast<size_t>(cols))
-  {
-    const auto end = order.begin() + static_cast<long>(std::min(order.size(), start + static_cast<size_t>(cols)));
-    std::stable_sort(order.begin() + static_cast<long>(start), end,
-                     [&](int a, int b) { return spots[a].x < spots[b].x; });
-  }
+  // The detector's sort reorders the spots themselves; tag them with their
+  // index to read the order back.
+  Spots tagged = spots;
+  for (size_t k = 0; k < tagged.size(); ++k)
+    tagged[k].beam = static_cast<int>(k);
+  sortIntoRows(&tagged, cols, 0, false);
+  std::vector<int> order(tagged.size());
+  for (size_t k = 0; k < tagged.size(); ++k)
+    order[k] = tagged[k].beam;
   return order;
 }
 
@@ -721,7 +721,7 @@ TriangulationResult Triangulator::process(const Spots& spots) const
         index.push_back(static_cast<int>(j));
       }
     }
-    const std::vector<int> order = sortIntoRows(finite, projector_.cols);
+    const std::vector<int> order = rowSortOrder(finite, projector_.cols);
     for (size_t k = 0; k < order.size() && static_cast<int>(k) < n_beams; ++k)
       beam_of_spot[index[order[k]]] = static_cast<int>(k);
   }

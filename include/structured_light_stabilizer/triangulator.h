@@ -94,9 +94,10 @@ struct TriangulationResult
 bool triangulateBeam(const Eigen::Vector3d& camera_ray, const BeamRay& beam, Eigen::Vector3d* point,
                      double* gap);
 
-// The study's sort (§2.4.2/§3.4): the `cols` topmost spots form a row, sorted
-// by x, then the next `cols`, ... Returns the spot indices in beam order.
-std::vector<int> sortIntoRows(const Spots& spots, int cols);
+// The study's row sort (§2.4.2/§3.4; spot_detector.h's sortIntoRows): the
+// `cols` topmost spots form a row, sorted by x, then the next `cols`, ...
+// Returns the spot indices in beam order.
+std::vector<int> rowSortOrder(const Spots& spots, int cols);
 
 // Image of each beam between two depths, in undistorted pixel coordinates
 // (fx * x/z + cx, fy * y/z + cy).

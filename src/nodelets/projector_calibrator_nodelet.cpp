@@ -110,7 +110,7 @@ private:
                                 spots.size(), n);
           return;
         }
-        const std::vector<int> order = sortIntoRows(spots, options_.cols);
+        const std::vector<int> order = rowSortOrder(spots, options_.cols);
         for (size_t k = 0; k < order.size(); ++k)
           spots[order[k]].beam = static_cast<int>(k);
       }
