@@ -316,7 +316,17 @@ private:
       catch (const std::exception& e)
       {
         NODELET_ERROR("CameraDriver: rejected simulator settings (%s); keeping the previous ones", e.what());
-        config.sun_level = simulator_->config().lighting.sun_level;
+        // Show the values in force, not the rejected ones, in rqt_reconfigure.
+        const SimulatorConfig& kept = simulator_->config();
+        config.sun_level = kept.lighting.sun_level;
+        config.dot_to_sun_ratio = kept.lighting.dot_to_sun_ratio;
+        config.exposure = kept.lighting.exposure;
+        config.power_scale = kept.projector.power_scale;
+        config.jitter_translation = kept.motion.jitter_translation_m;
+        config.jitter_rotation = kept.motion.jitter_rotation_rad;
+        config.jitter_frequency = kept.motion.jitter_frequency_hz;
+        config.read_noise = kept.sensor.read_noise_dn;
+        config.shot_noise = kept.sensor.shot_noise;
       }
     }
     rate_ = config.rate;
