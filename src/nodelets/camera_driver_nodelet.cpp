@@ -139,20 +139,28 @@ private:
 
   void loadCameraInfoUrl()
   {
+    // What is published instead: the simulator knows its own intrinsics.
+    const char* instead = source_ == "sim" ? "using the simulator's own intrinsics" :
+                                             "publishing an uncalibrated camera_info (K = 0) until it is fixed";
     if (!camera_info_manager_->validateURL(camera_info_url_))
     {
       NODELET_ERROR(
           "CameraDriver: ~camera_info_url '%s' is not a valid camera_info_manager URL (file:///path.yaml or "
-          "package://pkg/path.yaml); publishing an uncalibrated camera_info",
-          camera_info_url_.c_str());
+          "package://pkg/path.yaml); %s",
+          camera_info_url_.c_str(), instead);
       return;
     }
-    if (!camera_info_manager_->loadCameraInfo(camera_info_url_) || !camera_info_manager_->isCalibrated())
+    if (!camera_info_manager_->loadCameraInfo(camera_info_url_))
     {
-      NODELET_ERROR(
-          "CameraDriver: ~camera_info_url '%s' could not be loaded (missing or malformed file); publishing "
-          "an uncalibrated camera_info (K = 0) until it is fixed",
-          camera_info_url_.c_str());
+      NODELET_ERROR("CameraDriver: ~camera_info_url '%s' could not be loaded (missing or malformed file, see the "
+                    "parser's message above); %s",
+                    camera_info_url_.c_str(), instead);
+      return;
+    }
+    if (!camera_info_manager_->isCalibrated())
+    {
+      NODELET_ERROR("CameraDriver: ~camera_info_url '%s' has no intrinsics (camera_matrix K[0] = 0); %s",
+                    camera_info_url_.c_str(), instead);
       return;
     }
     calibrated_from_url_ = true;
