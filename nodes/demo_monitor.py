@@ -59,7 +59,7 @@ class Monitor:
         self.stats_file = rospy.get_param("~stats_file", "")
         self.lock = threading.Lock()
         self.gt_points, self.gt_pose, self.gt_visible, self.published_at = {}, {}, {}, {}
-        self.ref_stamp = None
+        self.ref_truth = None
         self.window = self._empty()
         self.total = self._empty()
         self.stats_pub = rospy.Publisher("~stats", DiagnosticStatus, queue_size=1, latch=True)
@@ -78,7 +78,7 @@ class Monitor:
     @staticmethod
     def _empty():
         return {"published": 0, "frames": 0, "dots_found": 0, "dots_visible": 0, "depth_sq": 0.0, "depth_rel_sq": 0.0,
-                "depth_n": 0, "pose_n": 0, "pose_valid": 0, "trans_sq": 0.0, "rot_sq": 0.0,
+                "depth_n": 0, "pose_n": 0, "pose_valid": 0, "pose_err_n": 0, "trans_sq": 0.0, "rot_sq": 0.0,
                 "latency": [], "pipeline_latency": []}
 
     @staticmethod
@@ -146,20 +146,20 @@ class Monitor:
                     acc["pipeline_latency"].append((now - published).to_sec())
             if not msg.valid:
                 return
+            for acc in (self.window, self.total):
+                acc["pose_valid"] += 1
             truth_now = self.gt_pose.get(msg.header.stamp)
             if truth_now is None:
                 return
-            if self.ref_stamp is None:
+            if self.ref_truth is None:
                 # auto_lock: the first valid map is the reference, so the
-                # estimate is relative to that frame's true pose.
-                self.ref_stamp = msg.header.stamp
-            truth_ref = self.gt_pose.get(self.ref_stamp)
-            if truth_ref is None:
-                return
-            truth = truth_now @ np.linalg.inv(truth_ref)
+                # estimate is relative to that frame's true pose (kept here:
+                # the history of ground truth is only HISTORY frames long).
+                self.ref_truth = truth_now
+            truth = truth_now @ np.linalg.inv(self.ref_truth)
             t_err, r_err = pose_error(transform_matrix(msg.transform), truth)
             for acc in (self.window, self.total):
-                acc["pose_valid"] += 1
+                acc["pose_err_n"] += 1
                 acc["trans_sq"] += t_err ** 2
                 acc["rot_sq"] += r_err ** 2
 
@@ -180,8 +180,8 @@ class Monitor:
             "depth_rms_percent": 100.0 * rms(acc["depth_rel_sq"], acc["depth_n"]),
             "pose_messages": acc["pose_n"],
             "pose_valid_fraction": acc["pose_valid"] / acc["pose_n"] if acc["pose_n"] else float("nan"),
-            "translation_rms_mm": 1e3 * rms(acc["trans_sq"], acc["pose_valid"]),
-            "rotation_rms_deg": rms(acc["rot_sq"], acc["pose_valid"]),
+            "translation_rms_mm": 1e3 * rms(acc["trans_sq"], acc["pose_err_n"]),
+            "rotation_rms_deg": rms(acc["rot_sq"], acc["pose_err_n"]),
             "latency_median_ms": 1e3 * float(np.median(lat)),
             "latency_p99_ms": 1e3 * float(np.percentile(lat, 99)),
             "pipeline_latency_median_ms": 1e3 * float(np.median(pipe)),

@@ -140,20 +140,28 @@ private:
 
   void loadCameraInfoUrl()
   {
+    // What is published instead: the simulator knows its own intrinsics.
+    const char* instead = source_ == "sim" ? "using the simulator's own intrinsics" :
+                                             "publishing an uncalibrated camera_info (K = 0) until it is fixed";
     if (!camera_info_manager_->validateURL(camera_info_url_))
     {
       NODELET_ERROR(
           "CameraDriver: ~camera_info_url '%s' is not a valid camera_info_manager URL (file:///path.yaml or "
-          "package://pkg/path.yaml); publishing an uncalibrated camera_info",
-          camera_info_url_.c_str());
+          "package://pkg/path.yaml); %s",
+          camera_info_url_.c_str(), instead);
       return;
     }
-    if (!camera_info_manager_->loadCameraInfo(camera_info_url_) || !camera_info_manager_->isCalibrated())
+    if (!camera_info_manager_->loadCameraInfo(camera_info_url_))
     {
-      NODELET_ERROR(
-          "CameraDriver: ~camera_info_url '%s' could not be loaded (missing or malformed file); publishing "
-          "an uncalibrated camera_info (K = 0) until it is fixed",
-          camera_info_url_.c_str());
+      NODELET_ERROR("CameraDriver: ~camera_info_url '%s' could not be loaded (missing or malformed file, see the "
+                    "parser's message above); %s",
+                    camera_info_url_.c_str(), instead);
+      return;
+    }
+    if (!camera_info_manager_->isCalibrated())
+    {
+      NODELET_ERROR("CameraDriver: ~camera_info_url '%s' has no intrinsics (camera_matrix K[0] = 0); %s",
+                    camera_info_url_.c_str(), instead);
       return;
     }
     calibrated_from_url_ = true;
@@ -345,7 +353,17 @@ private:
       catch (const std::exception& e)
       {
         NODELET_ERROR("CameraDriver: rejected simulator settings (%s); keeping the previous ones", e.what());
-        config.sun_level = simulator_->config().lighting.sun_level;
+        // Show the values in force, not the rejected ones, in rqt_reconfigure.
+        const SimulatorConfig& kept = simulator_->config();
+        config.sun_level = kept.lighting.sun_level;
+        config.dot_to_sun_ratio = kept.lighting.dot_to_sun_ratio;
+        config.exposure = kept.lighting.exposure;
+        config.power_scale = kept.projector.power_scale;
+        config.jitter_translation = kept.motion.jitter_translation_m;
+        config.jitter_rotation = kept.motion.jitter_rotation_rad;
+        config.jitter_frequency = kept.motion.jitter_frequency_hz;
+        config.read_noise = kept.sensor.read_noise_dn;
+        config.shot_noise = kept.sensor.shot_noise;
       }
     }
     rate_ = config.rate;

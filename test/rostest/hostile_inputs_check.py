@@ -125,11 +125,13 @@ class HostileInputs(unittest.TestCase):
         rospy.Subscriber("good/sim/ground_truth/spots", CentroidArray, cls.on_gt("spots"), queue_size=20)
         rospy.Subscriber("good/camera/image_raw", Image, cls.on_good_image, queue_size=4, buff_size=BIG)
         rospy.Subscriber("good/camera/camera_info", CameraInfo, cls.on_good_info, queue_size=4)
-        # The whole chain is lazy: wait until each stage listens to its input.
+        # The whole chain is lazy: wait until the manager listens to the input
+        # (one connection per process, however many nodelets subscribe).
         deadline = time.time() + 60
-        while time.time() < deadline and (cls.image_pub.get_num_connections() < 2 or
-                                          cls.info_pub.get_num_connections() < 2):
+        while time.time() < deadline and (cls.image_pub.get_num_connections() < 1 or
+                                          cls.info_pub.get_num_connections() < 1):
             time.sleep(0.1)
+        time.sleep(1.0)
         cls.list_srv = rospy.ServiceProxy(cls.manager + "/list", NodeletList)
         cls.list_srv.wait_for_service(30)
         cls.manager_pid = cls.pid_of(cls.manager)
