@@ -68,7 +68,6 @@ private:
     min_rate_ = min_rate;
     max_rate_ = max_rate;
 
-    estimator_.reset(auto_lock_);
     it_.reset(new image_transport::ImageTransport(nh));
 
     // dynamic_reconfigure: the server reads ~ params (mode, use_texture, ...)
@@ -76,6 +75,14 @@ private:
     reconfigure_server_.reset(new ReconfigureServer(reconfigure_mutex_, pnh));
     reconfigure_server_->setCallback(
         [this](PoseDeltaConfig& config, uint32_t level) { onReconfigure(config, level); });
+    {
+      // The start-up mode must not count as a mode change (that re-locks,
+      // which would defeat ~auto_lock:=false).
+      std::lock_guard<std::mutex> lock(config_mutex_);
+      estimator_.setParams(config_);
+      config_changed_ = false;
+    }
+    estimator_.reset(auto_lock_);
 
     updater_.reset(new diagnostic_updater::Updater(nh, pnh, getName()));
     updater_->setHardwareID("none");
