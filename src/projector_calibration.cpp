@@ -111,6 +111,71 @@ bool readStudyBeam(const YAML::Node& b, const std::string& what, BeamRay* ray, s
   return true;
 }
 
+// An angle given as `<name>_rad` or `<name>_deg`; absent -> *value unchanged
+// unless required.
+bool readAngle(const YAML::Node& g, const std::string& name, bool required, double* value, std::string* error)
+{
+  const YAML::Node rad = g[name + "_rad"], deg = g[name + "_deg"];
+  if (rad && deg)
+  {
+    *error = "grid: give " + name + "_rad or " + name + "_deg, not both" + at(rad);
+    return false;
+  }
+  if (!rad && !deg)
+  {
+    if (required)
+      *error = "grid: missing " + name + "_rad (or " + name + "_deg)" + at(g);
+    return !required;
+  }
+  const YAML::Node n = rad ? rad : deg;
+  try
+  {
+    *value = n.as<double>() * (rad ? 1.0 : M_PI / 180.0);
+  }
+  catch (const YAML::Exception&)
+  {
+    *error = "grid: " + name + " is not a number" + at(n);
+    return false;
+  }
+  if (!std::isfinite(*value))
+  {
+    *error = "grid: " + name + " is not finite" + at(n);
+    return false;
+  }
+  return true;
+}
+
+// The grid form (SPEC §2): one origin, a central direction, pitch angles and
+// an in-plane roll; expanded by makeGridProjector.
+bool readGrid(const YAML::Node& g, int rows, int cols, ProjectorCalibration* cal, std::string* error)
+{
+  if (!g.IsMap())
+  {
+    *error = "'grid' must be a map" + at(g);
+    return false;
+  }
+  Eigen::Vector3d origin, centre;
+  double pitch_x = 0.0, pitch_y = 0.0, roll = 0.0;
+  if (!readVector3(g["origin"], "grid origin", &origin, error) ||
+      !readVector3(g["centre_direction"], "grid centre_direction", &centre, error) ||
+      !readAngle(g, "pitch_x", true, &pitch_x, error) || !readAngle(g, "pitch_y", true, &pitch_y, error) ||
+      !readAngle(g, "roll", false, &roll, error))
+    return false;
+  if (centre.norm() < 1e-9)
+  {
+    *error = "grid centre_direction is zero" + at(g["centre_direction"]);
+    return false;
+  }
+  *cal = makeGridProjector(rows, cols, origin, centre, pitch_x, pitch_y, roll);
+  const std::string why = cal->validate();
+  if (!why.empty())
+  {
+    *error = "grid: " + why + at(g);
+    return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 std::string ProjectorCalibration::validate() const
@@ -206,6 +271,18 @@ bool parseProjectorCalibrationUnguarded(const std::string& yaml_text, ProjectorC
   ProjectorCalibration cal;
   if (!readPositiveInt(root, "rows", &cal.rows, error) || !readPositiveInt(root, "cols", &cal.cols, error))
     return false;
+  if (root["grid"])
+  {
+    if (root["beams"])
+    {
+      *error = "give either 'beams' or 'grid', not both" + at(root["grid"]);
+      return false;
+    }
+    if (!readGrid(root["grid"], cal.rows, cal.cols, &cal, error))
+      return false;
+    *out = cal;
+    return true;
+  }
   const YAML::Node beams = root["beams"];
   if (!beams || !beams.IsSequence())
   {

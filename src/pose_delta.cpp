@@ -1,0 +1,946 @@
+#include "structured_light_stabilizer/pose_delta.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include <Eigen/SVD>
+#include <Eigen/LU>
+#include <opencv2/imgproc.hpp>
+
+#include "structured_light_stabilizer/texture_tracker.h"
+
+namespace structured_light_stabilizer
+{
+
+namespace
+{
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+bool usable(const Eigen::Vector3d& p)
+{
+  return p.allFinite() && p.z() > 0.0;
+}
+
+// Catmull-Rom weights and their derivatives for the stencil (-1, 0, 1, 2).
+void catmullRom(double s, double w[4], double dw[4])
+{
+  const double s2 = s * s, s3 = s2 * s;
+  w[0] = 0.5 * (-s + 2.0 * s2 - s3);
+  w[1] = 0.5 * (2.0 - 5.0 * s2 + 3.0 * s3);
+  w[2] = 0.5 * (s + 4.0 * s2 - 3.0 * s3);
+  w[3] = 0.5 * (-s2 + s3);
+  dw[0] = 0.5 * (-1.0 + 4.0 * s - 3.0 * s2);
+  dw[1] = 0.5 * (-10.0 * s + 9.0 * s2);
+  dw[2] = 0.5 * (1.0 + 8.0 * s - 9.0 * s2);
+  dw[3] = 0.5 * (-2.0 * s + 3.0 * s2);
+}
+
+Eigen::Matrix3d skew(const Eigen::Vector3d& v)
+{
+  Eigen::Matrix3d m;
+  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return m;
+}
+
+double median(std::vector<double> v)
+{
+  if (v.empty())
+    return 0.0;
+  const size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + mid, v.end());
+  return v[mid];
+}
+
+// Exp(delta) * T with delta = (v, w) on the current-frame side.
+Eigen::Isometry3d applyIncrement(const Vector6d& delta, const Eigen::Isometry3d& T)
+{
+  Eigen::Isometry3d D = Eigen::Isometry3d::Identity();
+  D.linear() = expSO3(delta.tail<3>());
+  D.translation() = delta.head<3>();
+  Eigen::Isometry3d out = D * T;
+  // Keep the rotation orthonormal over many chained updates.
+  out.linear() = Eigen::Quaterniond(out.linear()).normalized().toRotationMatrix();
+  return out;
+}
+
+// Adjoint of T for left perturbations ordered (v, w).
+Matrix6d adjoint(const Eigen::Isometry3d& T)
+{
+  Matrix6d A = Matrix6d::Zero();
+  const Eigen::Matrix3d R = T.linear();
+  A.topLeftCorner<3, 3>() = R;
+  A.topRightCorner<3, 3>() = skew(T.translation()) * R;
+  A.bottomRightCorner<3, 3>() = R;
+  return A;
+}
+
+const char* const kAxisNames[6] = {"tx", "ty", "tz", "rx", "ry", "rz"};
+}  // namespace
+
+Eigen::Matrix3d expSO3(const Eigen::Vector3d& w)
+{
+  const double angle = w.norm();
+  if (angle < 1e-12)
+    return Eigen::Matrix3d::Identity() + skew(w);
+  return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+}
+
+Eigen::Vector3d logSO3(const Eigen::Matrix3d& R)
+{
+  const Eigen::AngleAxisd aa(R);
+  return aa.angle() * aa.axis();
+}
+
+// ---------------------------------------------------------------------------
+// BeamSurface
+
+void BeamSurface::build(int rows, int cols, const std::vector<Eigen::Vector3d>& points, double max_edge_ratio)
+{
+  rows_ = rows;
+  cols_ = cols;
+  valid_cells_ = 0;
+  median_edge_ = 0.0;
+  control_.clear();
+  cell_ok_.clear();
+  points_ = points;
+  if (rows < 2 || cols < 2 || static_cast<int>(points.size()) != rows * cols)
+  {
+    rows_ = cols_ = 0;
+    return;
+  }
+  auto ok = [&](int r, int c) { return r >= 0 && c >= 0 && r < rows && c < cols && usable(points[r * cols + c]); };
+  auto P = [&](int r, int c) -> const Eigen::Vector3d& { return points[r * cols + c]; };
+
+  std::vector<double> edges;
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c)
+    {
+      if (ok(r, c) && ok(r, c + 1))
+        edges.push_back((P(r, c) - P(r, c + 1)).norm());
+      if (ok(r, c) && ok(r + 1, c))
+        edges.push_back((P(r, c) - P(r + 1, c)).norm());
+    }
+  if (edges.empty())
+    return;
+  median_edge_ = median(edges);
+  const double max_edge = max_edge_ratio * median_edge_;
+  auto linked = [&](int r0, int c0, int r1, int c1)
+  { return ok(r0, c0) && ok(r1, c1) && (P(r0, c0) - P(r1, c1)).norm() <= max_edge; };
+
+  const int cell_rows = rows - 1, cell_cols = cols - 1;
+  control_.resize(static_cast<size_t>(cell_rows) * cell_cols);
+  cell_ok_.assign(static_cast<size_t>(cell_rows) * cell_cols, 0);
+  for (int r = 0; r < cell_rows; ++r)
+  {
+    for (int c = 0; c < cell_cols; ++c)
+    {
+      if (!linked(r, c, r, c + 1) || !linked(r + 1, c, r + 1, c + 1) || !linked(r, c, r + 1, c) ||
+          !linked(r, c + 1, r + 1, c + 1))
+        continue;
+      std::array<Eigen::Vector3d, 16>& K = control_[r * cell_cols + c];
+      // Stencil index (i, j) <-> grid point (r - 1 + i, c - 1 + j).
+      auto at = [&](int i, int j) -> Eigen::Vector3d& { return K[i * 4 + j]; };
+      for (int i = 1; i <= 2; ++i)
+        for (int j = 1; j <= 2; ++j)
+          at(i, j) = P(r - 1 + i, c - 1 + j);
+      // Edge stencil points: the real neighbour when it continues the
+      // surface, otherwise a linear extrapolation of the cell.
+      for (int j = 1; j <= 2; ++j)
+      {
+        const int cc = c - 1 + j;
+        at(0, j) = linked(r - 1, cc, r, cc) ? P(r - 1, cc) : Eigen::Vector3d(2.0 * at(1, j) - at(2, j));
+        at(3, j) = linked(r + 2, cc, r + 1, cc) ? P(r + 2, cc) : Eigen::Vector3d(2.0 * at(2, j) - at(1, j));
+      }
+      for (int i = 1; i <= 2; ++i)
+      {
+        const int rr = r - 1 + i;
+        at(i, 0) = linked(rr, c - 1, rr, c) ? P(rr, c - 1) : Eigen::Vector3d(2.0 * at(i, 1) - at(i, 2));
+        at(i, 3) = linked(rr, c + 2, rr, c + 1) ? P(rr, c + 2) : Eigen::Vector3d(2.0 * at(i, 2) - at(i, 1));
+      }
+      const int ci[2] = {0, 3}, inner[2] = {1, 2};
+      for (int a = 0; a < 2; ++a)
+        for (int b = 0; b < 2; ++b)
+        {
+          const int i = ci[a], j = ci[b], ii = inner[a], jj = inner[b];
+          const int gr = r - 1 + i, gc = c - 1 + j;
+          at(i, j) =
+              linked(gr, gc, r - 1 + ii, c - 1 + jj) ? P(gr, gc) : Eigen::Vector3d(at(i, jj) + at(ii, j) - at(ii, jj));
+        }
+      cell_ok_[r * cell_cols + c] = 1;
+      ++valid_cells_;
+    }
+  }
+}
+
+bool BeamSurface::cellValid(int r, int c) const
+{
+  return r >= 0 && c >= 0 && r < rows_ - 1 && c < cols_ - 1 && cell_ok_[r * (cols_ - 1) + c];
+}
+
+bool BeamSurface::evaluate(double u, double v, Eigen::Vector3d* s, Eigen::Vector3d* s_u, Eigen::Vector3d* s_v) const
+{
+  if (valid_cells_ == 0 || !std::isfinite(u) || !std::isfinite(v))
+    return false;
+  const double eps = 1e-9;
+  if (u < -eps || v < -eps || u > rows_ - 1 + eps || v > cols_ - 1 + eps)
+    return false;
+  const int r = std::min(std::max(static_cast<int>(std::floor(u)), 0), rows_ - 2);
+  const int c = std::min(std::max(static_cast<int>(std::floor(v)), 0), cols_ - 2);
+  if (!cellValid(r, c))
+    return false;
+  double wr[4], dwr[4], wc[4], dwc[4];
+  catmullRom(u - r, wr, dwr);
+  catmullRom(v - c, wc, dwc);
+  const std::array<Eigen::Vector3d, 16>& K = control_[r * (cols_ - 1) + c];
+  Eigen::Vector3d S = Eigen::Vector3d::Zero(), Su = Eigen::Vector3d::Zero(), Sv = Eigen::Vector3d::Zero();
+  for (int i = 0; i < 4; ++i)
+  {
+    Eigen::Vector3d row = Eigen::Vector3d::Zero(), drow = Eigen::Vector3d::Zero();
+    for (int j = 0; j < 4; ++j)
+    {
+      row += wc[j] * K[i * 4 + j];
+      drow += dwc[j] * K[i * 4 + j];
+    }
+    S += wr[i] * row;
+    Su += dwr[i] * row;
+    Sv += wr[i] * drow;
+  }
+  *s = S;
+  if (s_u)
+    *s_u = Su;
+  if (s_v)
+    *s_v = Sv;
+  return true;
+}
+
+bool BeamSurface::closestPoint(const Eigen::Vector3d& x, Eigen::Vector2d* uv, Eigen::Vector3d* foot,
+                               Eigen::Vector3d* normal) const
+{
+  if (valid_cells_ == 0)
+    return false;
+  Eigen::Vector2d p = *uv;
+  if (!p.allFinite())
+  {
+    double best = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < rows_ * cols_; ++i)
+    {
+      if (!usable(points_[i]))
+        continue;
+      const double d = (points_[i] - x).squaredNorm();
+      if (d < best)
+      {
+        best = d;
+        p = Eigen::Vector2d(i / cols_, i % cols_);
+      }
+    }
+    if (!p.allFinite())
+      return false;
+  }
+  Eigen::Vector3d S, Su, Sv;
+  bool pushed_out = false;
+  for (int it = 0; it < 12; ++it)
+  {
+    if (!evaluate(p.x(), p.y(), &S, &Su, &Sv))
+      return false;
+    Eigen::Matrix<double, 3, 2> J;
+    J << Su, Sv;
+    const Eigen::Matrix2d A = J.transpose() * J;
+    const double det = A.determinant();
+    if (!(det > 1e-30))
+      return false;
+    Eigen::Vector2d step = A.inverse() * (J.transpose() * (x - S));
+    const double len = step.norm();
+    if (len > 1.0)
+      step /= len;  // at most one cell per step: the surface is only locally quadratic
+    Eigen::Vector2d next = p + step;
+    pushed_out = false;
+    if (next.x() < 0.0 || next.y() < 0.0 || next.x() > rows_ - 1 || next.y() > cols_ - 1)
+    {
+      next.x() = std::min(std::max(next.x(), 0.0), static_cast<double>(rows_ - 1));
+      next.y() = std::min(std::max(next.y(), 0.0), static_cast<double>(cols_ - 1));
+      pushed_out = true;
+    }
+    p = next;
+    if (len < 1e-7)
+      break;
+  }
+  // A foot clamped at the border is not a perpendicular foot: the point lies
+  // beyond the mapped part of the rock.
+  if (pushed_out || !evaluate(p.x(), p.y(), &S, &Su, &Sv))
+    return false;
+  Eigen::Vector3d n = Su.cross(Sv);
+  const double nn = n.norm();
+  if (!(nn > 0.0))
+    return false;
+  n /= nn;
+  if (n.dot(S) > 0.0)
+    n = -n;
+  *uv = p;
+  *foot = S;
+  *normal = n;
+  return true;
+}
+
+bool BeamSurface::intersectRay(const Eigen::Vector3d& direction, Eigen::Vector2d* uv, Eigen::Vector3d* hit) const
+{
+  if (valid_cells_ == 0)
+    return false;
+  const Eigen::Vector3d d = direction.normalized();
+  const Eigen::Matrix3d Pperp = Eigen::Matrix3d::Identity() - d * d.transpose();
+  Eigen::Vector2d p = *uv;
+  if (!p.allFinite())
+  {
+    double best = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < rows_ * cols_; ++i)
+    {
+      if (!usable(points_[i]))
+        continue;
+      const double dist = (Pperp * points_[i]).squaredNorm();
+      if (dist < best)
+      {
+        best = dist;
+        p = Eigen::Vector2d(std::min(i / cols_, rows_ - 2) + 0.5, std::min(i % cols_, cols_ - 2) + 0.5);
+      }
+    }
+    if (!p.allFinite())
+      return false;
+  }
+  Eigen::Vector3d S, Su, Sv;
+  for (int it = 0; it < 15; ++it)
+  {
+    if (!evaluate(p.x(), p.y(), &S, &Su, &Sv))
+      return false;
+    Eigen::Matrix<double, 3, 2> J;
+    J << Pperp * Su, Pperp * Sv;
+    const Eigen::Matrix2d A = J.transpose() * J;
+    if (!(A.determinant() > 1e-30))
+      return false;
+    Eigen::Vector2d step = -A.inverse() * (J.transpose() * (Pperp * S));
+    const double len = step.norm();
+    if (len > 1.0)
+      step /= len;
+    p += step;
+    if (p.x() < 0.0 || p.y() < 0.0 || p.x() > rows_ - 1 || p.y() > cols_ - 1)
+      return false;
+    if (len < 1e-8)
+      break;
+  }
+  if (!evaluate(p.x(), p.y(), &S))
+    return false;
+  // The ray must actually pass through the surface, not just near it.
+  if ((Pperp * S).norm() > 1e-6 * S.norm() || S.dot(d) <= 0.0)
+    return false;
+  *uv = p;
+  *hit = S;
+  return true;
+}
+
+// ---------------------------------------------------------------------------
+// Registration
+
+std::string PoseDeltaParams::validate() const
+{
+  std::ostringstream why;
+  if (min_points < 6)
+    why << "min_points must be at least 6 (six unknowns); ";
+  if (max_iterations < 1)
+    why << "max_iterations must be positive; ";
+  if (!(huber_k > 0.0))
+    why << "huber_k must be positive; ";
+  if (!(min_geometry_sigma_m > 0.0) || !(min_texture_sigma_px > 0.0))
+    why << "noise floors must be positive; ";
+  if (!(prior_sigma_translation_m > 0.0) || !(prior_sigma_rotation_rad > 0.0))
+    why << "prior sigmas must be positive; ";
+  if (!(max_sigma_translation_m > 0.0) || !(max_sigma_rotation_rad > 0.0) || !(max_rms_residual_m > 0.0))
+    why << "validity bounds must be positive; ";
+  if (!(freeze_factor >= 1.0))
+    why << "freeze_factor must be at least 1; ";
+  if (!(max_edge_ratio > 1.0))
+    why << "max_edge_ratio must exceed 1; ";
+  if (texture_window_px < 5 || texture_window_px % 2 == 0)
+    why << "texture_window_px must be odd and >= 5; ";
+  if (texture_pyramid_levels < 0 || texture_pyramid_levels > 6)
+    why << "texture_pyramid_levels must be in [0, 6]; ";
+  if (texture_max_features < 0 || texture_min_features < 0)
+    why << "texture feature counts must not be negative; ";
+  std::string s = why.str();
+  if (s.size() >= 2)
+    s.resize(s.size() - 2);
+  return s;
+}
+
+RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
+                                     const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
+                                     const std::vector<Eigen::Vector3d>& current,
+                                     const std::vector<TextureConstraint>& texture, double focal_px,
+                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config)
+{
+  RegistrationOutput out;
+  out.transform = initial;
+  const int cols = std::max(reference_surface.cols(), 1);
+  const bool reverse = current_surface != nullptr && !current_surface->empty();
+  // Both directions see the same two sets of measurements: halve each so the
+  // information is not counted twice.
+  const double direction_weight = reverse ? 0.5 : 1.0;
+
+  std::vector<Eigen::Vector2d> uv_fwd(current.size()), uv_rev(reference.size());
+  for (size_t i = 0; i < current.size(); ++i)
+    uv_fwd[i] = Eigen::Vector2d(static_cast<double>(i / cols), static_cast<double>(i % cols));
+  for (size_t j = 0; j < reference.size(); ++j)
+    uv_rev[j] = Eigen::Vector2d(static_cast<double>(j / cols), static_cast<double>(j % cols));
+
+  Matrix6d prior = Matrix6d::Zero();
+  for (int a = 0; a < 3; ++a)
+  {
+    prior(a, a) = 1.0 / (config.prior_sigma_translation_m * config.prior_sigma_translation_m);
+    prior(a + 3, a + 3) = 1.0 / (config.prior_sigma_rotation_rad * config.prior_sigma_rotation_rad);
+  }
+
+  struct GeoRow
+  {
+    Eigen::Matrix<double, 1, 6> J;
+    double r;
+    double w;
+  };
+  std::vector<GeoRow> geo;
+  std::vector<Eigen::Matrix<double, 2, 6>> tex_J;
+  std::vector<Eigen::Vector2d> tex_r;
+  geo.reserve(current.size() + reference.size());
+
+  // Scene depth: converts rotations into metres of motion at the rock.
+  double depth = 1.0;
+  {
+    std::vector<double> z;
+    for (const Eigen::Vector3d& q : current)
+      if (usable(q))
+        z.push_back(q.norm());
+    if (!z.empty())
+      depth = median(z);
+  }
+  const double freeze_sigma =
+      config.freeze_factor * std::max(config.max_sigma_translation_m, config.max_sigma_rotation_rad * depth);
+
+  Eigen::Isometry3d T = initial;
+  double sigma_g = config.min_geometry_sigma_m, sigma_t = config.min_texture_sigma_px;
+  Matrix6d H_data = Matrix6d::Zero();
+  int forward_used = 0;
+  double sum_r2 = 0.0;
+  const int max_it = config.max_iterations;
+  Vector6d scale;
+  scale << 1.0, 1.0, 1.0, depth, depth, depth;
+  // Directions of the update (scaled coordinates): all six at first.
+  Eigen::Matrix<double, 6, Eigen::Dynamic> V = Matrix6d::Identity();
+  for (int phase = 0; phase < 2; ++phase)
+  {
+    bool converged = false;
+    for (int it = 0; it <= max_it; ++it)
+    {
+      // Linearise at T.
+      geo.clear();
+      tex_J.clear();
+      tex_r.clear();
+      forward_used = 0;
+      const Eigen::Matrix3d R = T.linear();
+      const Eigen::Isometry3d Tinv = T.inverse();
+      for (size_t i = 0; i < current.size(); ++i)
+      {
+        const Eigen::Vector3d& q = current[i];
+        if (!usable(q))
+          continue;
+        const Eigen::Vector3d x = Tinv * q;
+        Eigen::Vector3d foot, n;
+        if (!reference_surface.closestPoint(x, &uv_fwd[i], &foot, &n))
+        {
+          uv_fwd[i] = Eigen::Vector2d(static_cast<double>(i / cols), static_cast<double>(i % cols));
+          continue;
+        }
+        const Eigen::Vector3d m = R * n;
+        GeoRow row;
+        row.J << -m.transpose(), m.cross(q).transpose();
+        row.r = n.dot(x - foot);
+        row.w = direction_weight;
+        geo.push_back(row);
+        ++forward_used;
+      }
+      if (reverse)
+      {
+        for (size_t j = 0; j < reference.size(); ++j)
+        {
+          if (!usable(reference[j]))
+            continue;
+          const Eigen::Vector3d y = T * reference[j];
+          Eigen::Vector3d foot, n;
+          if (!current_surface->closestPoint(y, &uv_rev[j], &foot, &n))
+          {
+            uv_rev[j] = Eigen::Vector2d(static_cast<double>(j / cols), static_cast<double>(j % cols));
+            continue;
+          }
+          GeoRow row;
+          row.J << n.transpose(), y.cross(n).transpose();
+          row.r = n.dot(y - foot);
+          row.w = direction_weight;
+          geo.push_back(row);
+        }
+      }
+      for (const TextureConstraint& tc : texture)
+      {
+        const Eigen::Vector3d y = T * tc.point_ref;
+        if (!(y.z() > 1e-6))
+          continue;
+        const double iz = 1.0 / y.z();
+        Eigen::Matrix<double, 2, 3> dpi;
+        dpi << iz, 0.0, -y.x() * iz * iz, 0.0, iz, -y.y() * iz * iz;
+        dpi *= focal_px;
+        Eigen::Matrix<double, 3, 6> dy;
+        dy << Eigen::Matrix3d::Identity(), -skew(y);
+        tex_J.push_back(dpi * dy);
+        tex_r.push_back(focal_px * (Eigen::Vector2d(y.x() * iz, y.y() * iz) - tc.observed_normalized));
+      }
+
+      // Robust scales (MAD), floored by the expected noise.
+      {
+        std::vector<double> a;
+        a.reserve(geo.size());
+        for (const GeoRow& g : geo)
+          a.push_back(std::abs(g.r));
+        sigma_g = std::max(config.min_geometry_sigma_m, 1.4826 * median(a));
+        a.clear();
+        for (const Eigen::Vector2d& e : tex_r)
+        {
+          a.push_back(std::abs(e.x()));
+          a.push_back(std::abs(e.y()));
+        }
+        sigma_t = std::max(config.min_texture_sigma_px, 1.4826 * median(a));
+      }
+
+      Matrix6d H = Matrix6d::Zero();
+      Vector6d g = Vector6d::Zero();
+      sum_r2 = 0.0;
+      const double kg = config.huber_k * sigma_g, kt = config.huber_k * sigma_t;
+      for (const GeoRow& row : geo)
+      {
+        const double ar = std::abs(row.r);
+        const double huber = ar <= kg ? 1.0 : kg / ar;
+        const double w = row.w * huber / (sigma_g * sigma_g);
+        H.noalias() += w * row.J.transpose() * row.J;
+        g.noalias() += w * row.J.transpose() * row.r;
+        sum_r2 += row.r * row.r;
+      }
+      int tex_used = 0;
+      for (size_t k = 0; k < tex_r.size(); ++k)
+      {
+        const double ar = tex_r[k].norm();
+        if (it > 2 && ar > 6.0 * kt)
+          continue;  // a feature dragged by a dot or lost: drop it outright
+        const double huber = ar <= kt ? 1.0 : kt / ar;
+        const double w = huber / (sigma_t * sigma_t);
+        H.noalias() += w * tex_J[k].transpose() * tex_J[k];
+        g.noalias() += w * tex_J[k].transpose() * tex_r[k];
+        ++tex_used;
+      }
+      out.features_used = tex_used;
+      H_data = H;
+      out.iterations = it;
+      if (it == max_it || geo.empty() || converged)
+        break;
+
+      // Weak prior towards the initial guess keeps unobservable directions put.
+      Vector6d prior_r;
+      const Eigen::Isometry3d D = T * initial.inverse();
+      prior_r << D.translation(), logSO3(D.linear());
+      const Matrix6d A = H + prior;
+      const Vector6d b = g + prior * prior_r;
+      if (V.cols() == 0)
+        break;
+      const Matrix6d As = scale.cwiseInverse().asDiagonal() * A * scale.cwiseInverse().asDiagonal();
+      const Vector6d bs = scale.cwiseInverse().asDiagonal() * b;
+      const Eigen::MatrixXd Ar = V.transpose() * As * V;
+      const Eigen::VectorXd step_r = -Ar.ldlt().solve(V.transpose() * bs);
+      const Vector6d delta = scale.cwiseInverse().asDiagonal() * (V * step_r);
+      if (!delta.allFinite())
+        break;
+      T = applyIncrement(delta, T);
+      // Once settled, one more pass evaluates residuals and information at the solution.
+      converged = delta.head<3>().norm() < 1e-7 && delta.tail<3>().norm() < 1e-8;  // 0.1 um, 0.01 urad
+    }
+    if (phase == 1)
+      break;
+    // Directions the data cannot fix to within the validity bounds must not
+    // move at all: the estimate is the next frame's initial guess, and noise
+    // would make them random-walk from frame to frame. Decided at the solution
+    // (where the residual scales are the noise, not the initial misalignment),
+    // then solved again from the initial guess with those directions frozen.
+    // Rotations are scaled by the scene depth so that both halves are metres.
+    const Matrix6d Hs = scale.cwiseInverse().asDiagonal() * H_data * scale.cwiseInverse().asDiagonal();
+    // Hs is symmetric positive semi-definite, so its SVD is its eigen
+    // decomposition (and Jacobi SVD avoids a GCC false positive that the
+    // tridiagonalising eigen solver triggers with -Wall).
+    const Eigen::JacobiSVD<Matrix6d> eig(Hs, Eigen::ComputeFullU);
+    const double min_info = 1.0 / (freeze_sigma * freeze_sigma);
+    Eigen::Matrix<double, 6, Eigen::Dynamic> kept(6, 0);
+    for (int k = 0; k < 6; ++k)
+    {
+      if (eig.singularValues()[k] >= min_info)
+      {
+        kept.conservativeResize(Eigen::NoChange, kept.cols() + 1);
+        kept.col(kept.cols() - 1) = eig.matrixU().col(k);
+      }
+    }
+    if (kept.cols() == 6)
+      break;
+    V = kept;
+    T = initial;
+  }
+  out.transform = T;
+  out.information = H_data;
+  Matrix6d prior_only = Matrix6d::Zero();
+  for (int a = 0; a < 6; ++a)
+    prior_only(a, a) = prior(a, a);
+  out.covariance = (H_data + prior_only).inverse();
+  out.points_used = forward_used;
+  out.sigma_geometry_m = sigma_g;
+  out.sigma_texture_px = sigma_t;
+  out.rms_geometry_m = geo.empty() ? 0.0 : std::sqrt(sum_r2 / static_cast<double>(geo.size()));
+  return out;
+}
+
+// ---------------------------------------------------------------------------
+// Estimator
+
+struct PoseDeltaEstimator::Frame
+{
+  int rows = 0;
+  int cols = 0;
+  std::vector<Eigen::Vector3d> points;
+  BeamSurface surface;
+  std::vector<Eigen::Vector3d> features_3d;  // texture features lifted onto the surface (reference frame)
+  bool has_image = false;
+};
+
+PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaParams& config) : tracker_(new TextureTracker)
+{
+  setParams(config);
+}
+
+PoseDeltaEstimator::~PoseDeltaEstimator() = default;
+
+void PoseDeltaEstimator::setParams(const PoseDeltaParams& config)
+{
+  const std::string why = config.validate();
+  if (!why.empty())
+    throw std::invalid_argument("PoseDelta config: " + why);
+  const bool mode_changed = config.mode != config_.mode;
+  config_ = config;
+  if (mode_changed)
+    requestLock();
+}
+
+void PoseDeltaEstimator::setCamera(const CameraModel& camera)
+{
+  if (!camera.validate().empty())
+    return;
+  const bool changed = !has_camera_ || camera.width != camera_.width || camera.height != camera_.height ||
+                       camera.fx != camera_.fx || camera.fy != camera_.fy || camera.cx != camera_.cx ||
+                       camera.cy != camera_.cy || camera.D != camera_.D || camera.distortion != camera_.distortion;
+  camera_ = camera;
+  has_camera_ = true;
+  // Lifted features depend on the intrinsics; a new camera needs a new reference image.
+  if (changed && reference_)
+  {
+    tracker_->clear();
+    reference_->features_3d.clear();
+  }
+}
+
+void PoseDeltaEstimator::requestLock()
+{
+  lock_pending_ = true;
+}
+
+void PoseDeltaEstimator::reset(bool lock_on_next_frame)
+{
+  has_reference_ = false;
+  reference_.reset();
+  tracker_->clear();
+  last_estimate_ = Eigen::Isometry3d::Identity();
+  chained_ = Eigen::Isometry3d::Identity();
+  chained_covariance_ = Matrix6d::Zero();
+  lock_pending_ = lock_on_next_frame;
+}
+
+std::string PoseDeltaEstimator::checkMap(const PoseDeltaInput& frame, int* valid_points) const
+{
+  *valid_points = 0;
+  if (frame.rows <= 0 || frame.cols <= 0 || frame.points.empty())
+    return "empty cloud";
+  if (static_cast<int>(frame.points.size()) != frame.rows * frame.cols)
+    return "cloud has " + std::to_string(frame.points.size()) + " points but its layout is " +
+           std::to_string(frame.rows) + "x" + std::to_string(frame.cols);
+  if (frame.rows < 2 || frame.cols < 2)
+    return "cloud layout " + std::to_string(frame.rows) + "x" + std::to_string(frame.cols) +
+           " is not a 2D grid of beams (a surface needs at least 2x2)";
+  for (const Eigen::Vector3d& p : frame.points)
+    *valid_points += usable(p) ? 1 : 0;
+  if (*valid_points == 0)
+    return "no valid point in the cloud (all NaN)";
+  if (*valid_points < config_.min_points)
+    return "too few points: " + std::to_string(*valid_points) + " valid, need " + std::to_string(config_.min_points);
+  return "";
+}
+
+namespace
+{
+std::vector<cv::Point2f> projectAll(const CameraModel& camera, const std::vector<Eigen::Vector3d>& points)
+{
+  std::vector<cv::Point2f> px;
+  px.reserve(points.size());
+  for (const Eigen::Vector3d& p : points)
+  {
+    if (!usable(p))
+      continue;
+    const cv::Point2d q = camera.project(p);
+    if (std::isfinite(q.x) && std::isfinite(q.y))
+      px.emplace_back(static_cast<float>(q.x), static_cast<float>(q.y));
+  }
+  return px;
+}
+}  // namespace
+
+void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
+{
+  std::unique_ptr<Frame> ref(new Frame);
+  ref->rows = frame.rows;
+  ref->cols = frame.cols;
+  ref->points = frame.points;
+  ref->surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
+  tracker_->clear();
+  if (config_.use_texture && has_camera_ && !frame.image.empty() && frame.image.cols == camera_.width &&
+      frame.image.rows == camera_.height)
+  {
+    TextureTrackerConfig tc;
+    tc.max_features = config_.texture_max_features;
+    tc.quality = config_.texture_quality;
+    tc.min_distance_px = config_.texture_min_distance_px;
+    tc.window_px = config_.texture_window_px;
+    tc.pyramid_levels = config_.texture_pyramid_levels;
+    tc.dot_clearance_px = config_.texture_dot_clearance_px;
+    tc.roi_margin_px = config_.texture_roi_margin_px;
+    *tracker_ = TextureTracker(tc);
+    // Features only where the dot map gives depth: the box of the dots.
+    const std::vector<cv::Point2f> dots = projectAll(camera_, frame.points);
+    if (!dots.empty())
+    {
+      const cv::Rect region = cv::boundingRect(dots);
+      tracker_->setReference(frame.image, frame.texture_channel, region, dots);
+      std::vector<uint8_t> keep(tracker_->features().size(), 0);
+      for (size_t k = 0; k < keep.size(); ++k)
+      {
+        Eigen::Vector2d uv(kNaN, kNaN);
+        Eigen::Vector3d X;
+        const cv::Point2f& f = tracker_->features()[k];
+        if (ref->surface.intersectRay(camera_.ray(cv::Point2d(f.x, f.y)), &uv, &X))
+        {
+          keep[k] = 1;
+          ref->features_3d.push_back(X);
+        }
+      }
+      tracker_->retain(keep);
+      ref->has_image = true;
+    }
+  }
+  reference_ = std::move(ref);
+  has_reference_ = true;
+  lock_pending_ = false;
+  last_estimate_ = Eigen::Isometry3d::Identity();
+}
+
+PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
+{
+  PoseDeltaResult result;
+  result.covariance = Matrix6d::Zero();
+  for (int a = 0; a < 6; ++a)
+    result.covariance(a, a) = a < 3 ? config_.prior_sigma_translation_m * config_.prior_sigma_translation_m
+                                    : config_.prior_sigma_rotation_rad * config_.prior_sigma_rotation_rad;
+  result.unobservable.fill(true);
+  const bool chained = config_.mode == PoseDeltaMode::kFrameToFrame;
+  result.transform = chained ? Eigen::Isometry3d(last_estimate_ * chained_) : last_estimate_;
+
+  int valid_points = 0;
+  const std::string bad = checkMap(frame, &valid_points);
+  if (!bad.empty())
+  {
+    result.status = bad + (has_reference_ ? "" : "; no reference locked yet");
+    return result;
+  }
+
+  if (!lock_pending_ && !has_reference_)
+  {
+    result.status = "no reference locked: call the pose_delta/lock service";
+    return result;
+  }
+  if (lock_pending_)
+  {
+    BeamSurface probe;
+    probe.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
+    if (probe.validCells() < 4)
+    {
+      result.status = "cannot lock on this map: only " + std::to_string(probe.validCells()) +
+                      " surface cells between valid neighbouring dots";
+      return result;
+    }
+    lock(frame);
+    chained_ = Eigen::Isometry3d::Identity();
+    chained_covariance_ = Matrix6d::Zero();
+    result.locked_now = true;
+    result.transform = Eigen::Isometry3d::Identity();
+  }
+
+  if (frame.rows != reference_->rows || frame.cols != reference_->cols)
+  {
+    result.status = "cloud layout " + std::to_string(frame.rows) + "x" + std::to_string(frame.cols) +
+                    " differs from the reference's " + std::to_string(reference_->rows) + "x" +
+                    std::to_string(reference_->cols) + "; lock again (pose_delta/lock)";
+    return result;
+  }
+
+  BeamSurface current_surface;
+  if (config_.symmetric)
+    current_surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
+
+  // Texture: track the reference features into this image, starting where
+  // the last estimate puts them.
+  Eigen::Isometry3d initial = last_estimate_;
+  std::vector<TextureConstraint> texture;
+  std::string texture_note;
+  const bool texture_wanted = config_.use_texture;
+  if (texture_wanted)
+  {
+    if (!has_camera_)
+      texture_note = "no camera_info for the texture";
+    else if (!reference_->has_image)
+      texture_note = "the reference has no image (lock again with images flowing)";
+    else if (tracker_->empty())
+      texture_note = "no trackable texture in the reference image";
+    else if (frame.image.empty())
+      texture_note = "no image for this cloud";
+    else if (frame.image.cols != camera_.width || frame.image.rows != camera_.height)
+      texture_note = "image size differs from camera_info";
+    else
+    {
+      // Geometry first: on a rough rock it places the features to within a
+      // pixel or two, on any surface it fixes distance and tilts.
+      // Only a prediction: one direction, a few iterations, no second phase.
+      PoseDeltaParams quick = config_;
+      quick.max_iterations = std::min(config_.max_iterations, 6);
+      quick.freeze_factor = 1e9;
+      const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,
+                                                       frame.points, {}, 1.0, initial, quick);
+      if (geo.points_used >= config_.min_points && geo.transform.matrix().allFinite())
+        initial = geo.transform;
+      const std::vector<Eigen::Vector3d>& X = reference_->features_3d;
+      std::vector<cv::Point2f> predicted(X.size());
+      for (size_t k = 0; k < X.size(); ++k)
+      {
+        const cv::Point2d p = camera_.project(initial * X[k]);
+        predicted[k] = cv::Point2f(static_cast<float>(p.x), static_cast<float>(p.y));
+      }
+      std::vector<cv::Point2f> tracked;
+      std::vector<uint8_t> ok;
+      const int n = tracker_->track(frame.image, frame.texture_channel, predicted, projectAll(camera_, frame.points),
+                                    &tracked, &ok);
+      if (n < config_.texture_min_features)
+        texture_note = "only " + std::to_string(n) + " texture features tracked";
+      else
+        for (size_t k = 0; k < X.size(); ++k)
+          if (ok[k])
+            texture.push_back({X[k], camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y))});
+    }
+  }
+
+  const RegistrationOutput reg =
+      registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
+                        frame.points, texture, has_camera_ ? camera_.fx : 1.0, initial, config_);
+  result.points_used = reg.points_used;
+  result.features_used = reg.features_used;
+  result.iterations = reg.iterations;
+  result.sigma_geometry_m = reg.sigma_geometry_m;
+  result.sigma_texture_px = texture.empty() ? 0.0 : reg.sigma_texture_px;
+  result.rms_residual_m = reg.rms_geometry_m;
+
+  Matrix6d cov = reg.covariance;
+  Eigen::Isometry3d estimate = reg.transform;
+  if (chained)
+  {
+    const Matrix6d A = adjoint(reg.transform);
+    cov = reg.covariance + A * chained_covariance_ * A.transpose();
+    estimate = reg.transform * chained_;
+  }
+  result.transform = estimate;
+  result.covariance = cov;
+
+  std::ostringstream status;
+  std::string unobservable;
+  for (int a = 0; a < 6; ++a)
+  {
+    const double sigma = std::sqrt(std::max(0.0, cov(a, a)));
+    const double bound = a < 3 ? config_.max_sigma_translation_m : config_.max_sigma_rotation_rad;
+    result.unobservable[a] = !(sigma <= bound);
+    if (result.unobservable[a])
+      unobservable += std::string(unobservable.empty() ? "" : " ") + kAxisNames[a];
+  }
+  const bool enough = reg.points_used >= config_.min_points;
+  const bool residual_ok = reg.rms_geometry_m <= config_.max_rms_residual_m;
+  result.valid = enough && residual_ok && unobservable.empty();
+  if (!enough)
+    status << "too few points on the reference surface: " << reg.points_used << " of " << valid_points << " (need "
+           << config_.min_points << "; the rig moved off the mapped rock?)";
+  else if (!residual_ok)
+    status << "residual " << reg.rms_geometry_m * 1e3 << " mm exceeds " << config_.max_rms_residual_m * 1e3
+           << " mm: the surface does not match the reference";
+  else if (!unobservable.empty())
+  {
+    status << "unobservable: " << unobservable << " (";
+    if (!texture_wanted)
+      status << "smooth or flat surface, texture off";
+    else if (!texture_note.empty())
+      status << "smooth or flat surface; texture unused: " << texture_note;
+    else
+      status << "weak geometry and texture: " << reg.features_used << " features";
+    status << ")";
+  }
+  else
+  {
+    status << "ok: " << reg.points_used << " points";
+    if (texture_wanted)
+    {
+      if (texture_note.empty())
+        status << ", " << reg.features_used << " texture features";
+      else
+        status << ", texture unused: " << texture_note;
+    }
+  }
+  if (result.locked_now)
+    status << "; reference locked on this frame";
+  result.status = status.str();
+
+  // The next frame starts from the last valid estimate: an invalid one may
+  // carry garbage on its weak axes, and a wrong texture prediction does not
+  // recover by itself.
+  if (result.valid)
+  {
+    if (chained)
+    {
+      chained_ = estimate;
+      chained_covariance_ = cov;
+      lock(frame);
+    }
+    else
+      last_estimate_ = reg.transform;
+  }
+  return result;
+}
+
+}  // namespace structured_light_stabilizer

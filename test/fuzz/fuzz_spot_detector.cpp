@@ -1,0 +1,131 @@
+// libFuzzer target: the spot detector core on arbitrary image bytes.
+//
+// Input layout (little endian): [0] pixel format (mod 5), [1..2] width - 1
+// (mod 160), [3..4] height - 1 (mod 160), [5] row padding in bytes (mod 16),
+// [6] flags: bit 0 method (fast/baseline), bit 1 debug output, bits 2-7 pick
+// a parameter variant; [7..10] parameter bytes. The rest is the pixel data,
+// repeated to fill the image (an image built from few bytes is mostly flat,
+// many bytes give noise and dots). Both methods run on every image, the one
+// picked by bit 0 with the variant's parameters (run through sanitize() as
+// the nodelet does). The detector must return ok with finite centroids inside
+// the image, or refuse with a message; never crash, hang or throw.
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstdlib>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "structured_light_stabilizer/spot_detector.h"
+
+namespace
+{
+using namespace structured_light_stabilizer;
+
+void check(const SpotDetectionResult& r, const cv::Mat& image)
+{
+  if (!r.ok)
+  {
+    if (r.error.empty())
+      std::abort();  // refused without saying why
+    return;
+  }
+  for (const Spot& s : r.spots)
+  {
+    if (!std::isfinite(s.x) || !std::isfinite(s.y))
+      std::abort();
+    // Centroids are weighted means of pixels of the image.
+    if (s.x < -0.5 || s.y < -0.5 || s.x > image.cols - 0.5 || s.y > image.rows - 0.5)
+      std::abort();
+  }
+}
+
+SpotDetectorParams variant(uint8_t flags, const uint8_t* p)
+{
+  SpotDetectorParams params;
+  params.method = (flags & 1) ? SpotMethod::kBaseline : SpotMethod::kFast;
+  switch ((flags >> 2) % 4)
+  {
+    case 0:
+      break;  // defaults
+    case 1:   // extremes of the baseline knobs, possibly inconsistent
+      params.blur_kernel = p[0] % 32;
+      params.h_min = p[1] % 180;
+      params.h_max = p[2] % 180;
+      params.erosions = p[3] % 4;
+      params.dilations = p[0] % 4;
+      params.min_area = p[1] % 8;
+      params.max_area = p[2] % 3 == 0 ? 0 : p[3];
+      params.baseline_weight = (p[3] & 1) ? BaselineWeight::kValue : BaselineWeight::kSaturation;
+      break;
+    case 2:  // extremes of the fast detector's knobs
+      params.detect_threshold = 1 + p[0] % 255;
+      params.min_peak = 1 + p[1] % 255;
+      params.coarse_threshold = p[2] % 8;
+      params.window_radius_px = p[3] % 25;
+      params.min_pixels = 1 + p[0] % 3;
+      params.min_sigma_px = (p[1] % 40) * 0.1;
+      params.max_sigma_px = 0.3 + (p[2] % 40) * 0.5;
+      params.subtract_rock_texture = p[3] & 1;
+      params.consistency_min_spots = 1 + p[2] % 4;
+      break;
+    default:  // frame-level tests off / everything lenient
+      params.min_sigma_fraction = 0.0;
+      params.max_sigma_factor = 0.0;
+      params.max_contrast_factor = 0.0;
+      params.max_chroma_error = (p[0] % 100) * 0.1;
+      params.red_weight = (p[1] % 11) * 0.1;
+      params.saturation_level = 1 + p[2] % 255;
+      params.min_peak = 1;
+      params.detect_threshold = 1;
+      params.min_sigma_px = 0.0;
+      break;
+  }
+  params.projector_rows = 1 + p[3] % 10;
+  params.projector_cols = 1 + p[0] % 10;
+  params.sanitize();
+  return params;
+}
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
+{
+  constexpr size_t kHeader = 11;
+  if (size < kHeader)
+    return 0;
+  const PixelFormat formats[] = {PixelFormat::kBgr8, PixelFormat::kRgb8, PixelFormat::kBgra8, PixelFormat::kRgba8,
+                                 PixelFormat::kMono8};
+  const PixelFormat format = formats[data[0] % 5];
+  const int width = 1 + (data[1] | data[2] << 8) % 160;
+  const int height = 1 + (data[3] | data[4] << 8) % 160;
+  const int channels = channelCount(format);
+  const size_t step = static_cast<size_t>(width) * channels + data[5] % 16;
+  const uint8_t flags = data[6];
+  const uint8_t* params = data + 7;
+  const uint8_t* pixels = data + kHeader;
+  const size_t n = size - kHeader;
+
+  // A buffer of step * height bytes honouring the step, as a message's data.
+  std::vector<uint8_t> buffer(step * height);
+  for (size_t i = 0; i < buffer.size(); ++i)
+    buffer[i] = n > 0 ? pixels[i % n] : 0;
+  const cv::Mat image(height, width, CV_MAKETYPE(CV_8U, channels), buffer.data(), step);
+
+  const bool want_debug = flags & 2;
+  const SpotDetectorParams picked = variant(flags, params);
+  for (const SpotMethod method : {picked.method, picked.method == SpotMethod::kFast ? SpotMethod::kBaseline
+                                                                                   : SpotMethod::kFast})
+  {
+    SpotDetectorParams p = picked;
+    p.method = method;
+    SpotDetector detector(p);
+    SpotDetectorDebug debug;
+    SpotDetectorTimings timings;
+    const SpotDetectionResult r = detector.detect(image, format, want_debug ? &debug : nullptr, &timings);
+    check(r, image);
+    if (want_debug && r.ok)
+      (void)drawSpotDebugImage(image, format, r.spots, debug);
+  }
+  return 0;
+}

@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""PoseDelta bad input (pose_delta_bad_input.test): every bad cloud gives a
+pose_delta with valid = false and a status naming the problem, the lock
+service refuses while no map has arrived, and the node keeps working."""
+import math
+import threading
+import time
+import unittest
+
+import rospy
+import rostest
+from sensor_msgs import point_cloud2
+from sensor_msgs.msg import PointCloud2, PointField
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+from structured_light_stabilizer.msg import PoseDelta
+
+PKG = "structured_light_stabilizer"
+FIELDS = [PointField("x", 0, PointField.FLOAT32, 1), PointField("y", 4, PointField.FLOAT32, 1),
+          PointField("z", 8, PointField.FLOAT32, 1), PointField("intensity", 12, PointField.FLOAT32, 1),
+          PointField("beam", 16, PointField.UINT32, 1)]
+
+
+def rock_points(rows=10, cols=10):
+    """An organised grid of points on a rough analytic surface 1.5 m away."""
+    pts = []
+    for r in range(rows):
+        for c in range(cols):
+            x, y = (c - 4.5) * 0.055, (r - 4.5) * 0.055
+            z = 1.5 + 0.04 * math.sin(6 * x) + 0.03 * math.cos(5 * y) + 0.02 * math.sin(9 * (x + y))
+            pts.append([x, y, z])
+    return pts
+
+
+def cloud(points, rows, cols, fields=FIELDS, stamp=None):
+    header = Header(frame_id="camera_optical_frame", stamp=stamp or rospy.Time.now())
+    data = [p + [1.0, i] for i, p in enumerate(points)] if len(fields) == 5 else points
+    msg = point_cloud2.create_cloud(header, fields, data)
+    msg.height, msg.width = rows, cols
+    msg.row_step = msg.point_step * cols
+    msg.is_dense = False
+    return msg
+
+
+class PoseDeltaBadInput(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        rospy.init_node("check_pose_delta_bad_input")
+        cls.lock = threading.Lock()
+        cls.received = {}
+        rospy.Subscriber("pose_delta", PoseDelta, cls._on_pose, queue_size=20)
+        cls.pub = rospy.Publisher("points", PointCloud2, queue_size=5)
+        rospy.wait_for_service("pose_delta/lock", 20.0)
+        cls.lock_srv = rospy.ServiceProxy("pose_delta/lock", Trigger)
+        deadline = time.time() + 20.0
+        while cls.pub.get_num_connections() == 0 and time.time() < deadline:
+            time.sleep(0.1)
+
+    @classmethod
+    def _on_pose(cls, msg):
+        with cls.lock:
+            cls.received[msg.header.stamp] = msg
+
+    def send(self, msg):
+        self.pub.publish(msg)
+        deadline = time.time() + 5.0
+        while time.time() < deadline:
+            with self.lock:
+                if msg.header.stamp in self.received:
+                    return self.received[msg.header.stamp]
+            time.sleep(0.05)
+        self.fail("no pose_delta for the cloud stamped %.3f" % msg.header.stamp.to_sec())
+
+    def test_sequence(self):
+        good = rock_points()
+        nan = [float("nan")] * 3
+        # No map yet: the lock request is refused with the reason.
+        res = self.lock_srv()
+        self.assertFalse(res.success)
+        self.assertIn("no map has arrived", res.message)
+        print("lock before any map: %s" % res.message)
+
+        # A good map, but no lock requested (~auto_lock false).
+        out = self.send(cloud(good, 10, 10))
+        self.assertFalse(out.valid)
+        self.assertIn("no reference locked", out.status)
+
+        res = self.lock_srv()
+        self.assertTrue(res.success, res.message)
+        out = self.send(cloud(good, 10, 10))
+        self.assertTrue(out.valid, out.status)
+        self.assertIn("reference locked", out.status)
+
+        cases = [
+            ("all NaN", cloud([nan] * 100, 10, 10), "all NaN"),
+            ("too few", cloud(good[:5] + [nan] * 95, 10, 10), "too few points"),
+            ("other layout", cloud(good, 5, 20), "differs from the reference"),
+            ("empty", cloud([], 0, 0), "bad points cloud"),
+            ("no xyz", cloud([[1.0, 2.0]] * 100, 10, 10,
+                             [PointField("a", 0, PointField.FLOAT32, 1), PointField("b", 4, PointField.FLOAT32, 1)]),
+             "lacks float32 x, y, z"),
+            ("another rock", cloud([[p[0], p[1], 1.0 + 0.5 * p[0]] for p in good], 10, 10), "residual"),
+        ]
+        for name, msg, expected in cases:
+            out = self.send(msg)
+            print("%s: valid=%s status=%s" % (name, out.valid, out.status))
+            self.assertFalse(out.valid, name)
+            self.assertIn(expected, out.status, name)
+
+        # Still alive and still locked on the same reference.
+        out = self.send(cloud(good, 10, 10))
+        self.assertTrue(out.valid, out.status)
+        self.assertLess(abs(out.transform.translation.x) + abs(out.transform.translation.y) +
+                        abs(out.transform.translation.z), 1e-6)
+
+
+if __name__ == "__main__":
+    rostest.rosrun(PKG, "pose_delta_bad_input", PoseDeltaBadInput)

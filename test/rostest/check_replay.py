@@ -1,0 +1,204 @@
+#!/usr/bin/env python3
+"""rosbag round trip (the pipeline issue):
+1. live: demo.launch (simulator + pipeline); rosbag records the camera topics
+   and ground truth (bag A) and the live outputs (bag L);
+2. replay A twice through replay.launch (source:=none, --clock, use_sim_time)
+   recording the outputs (R1, R2), and once with split:=true, PoseDelta as a
+   standalone node in its own process (R3).
+Asserts: R1 and R2 are identical (same stamps, same points bytes, same
+pose_delta); R3 equals R1 (crossing a process boundary changes nothing); the
+live run and the replays meet the stage bounds against the ground truth."""
+import math
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+import unittest
+
+import numpy as np
+import rosbag
+import yaml
+import rospy
+import rostest
+from sensor_msgs import point_cloud2
+
+PKG = "structured_light_stabilizer"
+INPUT_TOPICS = ["/camera/image_raw", "/camera/camera_info", "/sim/ground_truth/points",
+                "/sim/ground_truth/pose_delta", "/sim/ground_truth/spots"]
+OUTPUT_TOPICS = ["/points", "/pose_delta"]
+RECORD_S = 6
+
+
+def start(args, log):
+    return subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def stop(proc, timeout=20.0):
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def xyz(msg):
+    return np.array(list(point_cloud2.read_points(msg, field_names=("x", "y", "z"), skip_nans=False)),
+                    dtype=np.float64).reshape(-1, 3)
+
+
+def matrix(tf):
+    q, t = tf.rotation, tf.translation
+    x, y, z, w = q.x, q.y, q.z, q.w
+    m = np.eye(4)
+    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    m[:3, 3] = [t.x, t.y, t.z]
+    return m
+
+
+def read_outputs(path):
+    points, poses = {}, {}
+    with rosbag.Bag(path) as bag:
+        for topic, msg, _ in bag.read_messages(topics=OUTPUT_TOPICS):
+            if topic == "/points":
+                points[msg.header.stamp.to_nsec()] = msg
+            else:
+                poses[msg.header.stamp.to_nsec()] = msg
+    return points, poses
+
+
+def read_truth(path):
+    points, poses = {}, {}
+    with rosbag.Bag(path) as bag:
+        for topic, msg, _ in bag.read_messages(topics=["/sim/ground_truth/points", "/sim/ground_truth/pose_delta"]):
+            if topic.endswith("points"):
+                points[msg.header.stamp.to_nsec()] = xyz(msg)
+            else:
+                poses[msg.header.stamp.to_nsec()] = matrix(msg.transform)
+    return points, poses
+
+
+def accuracy(outputs, truth):
+    """Depth RMS (% of distance), pose translation RMS (mm), rotation RMS (deg),
+    valid fraction; the pose is compared with the true motion since the first
+    valid frame (the auto-lock reference)."""
+    points, poses = outputs
+    gt_points, gt_poses = truth
+    rel = []
+    for stamp, msg in points.items():
+        if stamp in gt_points:
+            est, gt = xyz(msg), gt_points[stamp]
+            ok = np.isfinite(est).all(axis=1) & np.isfinite(gt).all(axis=1)
+            rel.extend(np.linalg.norm(est[ok] - gt[ok], axis=1) / np.linalg.norm(gt[ok], axis=1))
+    t_sq, r_sq, valid, ref = [], [], 0, None
+    for stamp in sorted(poses):
+        msg = poses[stamp]
+        if not msg.valid or stamp not in gt_poses:
+            continue
+        valid += 1
+        if ref is None:
+            ref = gt_poses[stamp]
+        truth_rel = gt_poses[stamp] @ np.linalg.inv(ref)
+        e = matrix(msg.transform) @ np.linalg.inv(truth_rel)
+        t_sq.append(np.sum(e[:3, 3] ** 2))
+        r_sq.append(math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(e[:3, :3]) - 1) / 2)))) ** 2)
+    rms = lambda v: math.sqrt(np.mean(v)) if len(v) else float("nan")
+    return {"depth_rms_percent": 100 * rms(np.square(rel)), "translation_rms_mm": 1e3 * rms(t_sq),
+            "rotation_rms_deg": rms(r_sq), "valid_fraction": valid / max(1, len(poses)),
+            "frames": len(points)}
+
+
+class ReplayRoundTrip(unittest.TestCase):
+    def setUp(self):
+        rospy.init_node("check_replay", anonymous=True)
+        self.dir = tempfile.mkdtemp(prefix="sls_replay_")
+        self.log = open(os.path.join(self.dir, "processes.log"), "w")
+
+    def tearDown(self):
+        self.log.close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def record(self, name, topics, duration=None):
+        args = ["rosbag", "record", "-O", os.path.join(self.dir, name), "--quiet"]
+        if duration:
+            args.append("--duration=%d" % duration)
+        return start(args + topics, self.log)
+
+    def replay(self, name, split):
+        outputs = self.record(name, OUTPUT_TOPICS)
+        time.sleep(1.0)
+        launch = start(["roslaunch", PKG, "replay.launch", "bag:=" + os.path.join(self.dir, "input.bag"),
+                        "rate:=0.5", "start_delay:=3", "required:=true", "split:=%s" % str(split).lower()],
+                       self.log)
+        launch.wait(timeout=120)
+        time.sleep(1.0)
+        stop(outputs)
+        return read_outputs(os.path.join(self.dir, name))
+
+    def test_round_trip(self):
+        live_stats = os.path.join(self.dir, "live_stats.yaml")
+        live = start(["roslaunch", PKG, "demo.launch", "rate:=10", "stats_file:=" + live_stats], self.log)
+        try:
+            from sensor_msgs.msg import PointCloud2
+            rospy.wait_for_message("/points", PointCloud2, timeout=60)
+            rec_in = self.record("input.bag", INPUT_TOPICS, RECORD_S)
+            rec_out = self.record("live.bag", OUTPUT_TOPICS, RECORD_S)
+            rec_in.wait(timeout=60)
+            rec_out.wait(timeout=60)
+        finally:
+            stop(live)
+        truth = read_truth(os.path.join(self.dir, "input.bag"))
+        live_out = read_outputs(os.path.join(self.dir, "live.bag"))
+        with open(live_stats) as f:
+            live_acc = yaml.safe_load(f)
+        r1 = self.replay("replay1.bag", split=False)
+        r2 = self.replay("replay2.bag", split=False)
+        r3 = self.replay("split.bag", split=True)
+
+        n_input = len(truth[0])
+        print("[ MEASURE ] recorded %d frames; replays produced %d / %d / %d clouds and %d / %d / %d pose deltas"
+              % (n_input, len(r1[0]), len(r2[0]), len(r3[0]), len(r1[1]), len(r2[1]), len(r3[1])))
+        self.assertGreaterEqual(n_input, 3 * RECORD_S, "too few frames recorded")
+        # Every recorded frame goes through the replay (nothing dropped at half speed).
+        self.assertEqual(len(r1[0]), n_input)
+        self.assertEqual(len(r1[1]), n_input)
+
+        for name, other in (("second replay", r2), ("split replay", r3)):
+            self.assertEqual(sorted(other[0]), sorted(r1[0]), "%s: other cloud stamps" % name)
+            self.assertEqual(sorted(other[1]), sorted(r1[1]), "%s: other pose_delta stamps" % name)
+            for stamp, msg in r1[0].items():
+                self.assertEqual(bytes(other[0][stamp].data), bytes(msg.data), "%s: points differ" % name)
+            for stamp, msg in r1[1].items():
+                o = other[1][stamp]
+                self.assertEqual((o.valid, o.status, o.points_used), (msg.valid, msg.status, msg.points_used))
+                self.assertTrue(np.array_equal(matrix(o.transform), matrix(msg.transform)), "%s: pose differs" % name)
+                self.assertEqual(tuple(o.covariance), tuple(msg.covariance))
+
+        # The live run locked its reference before recording began, so its
+        # pose figures come from the demo monitor, which saw the whole run.
+        live_acc["valid_fraction"] = live_acc["pose_valid_fraction"]
+        # The replays start from the bag's first frame: their reference is the
+        # first valid frame of the bag.
+        replay_acc = accuracy(r1, truth)
+        # Live and replay see the same frames: their clouds agree closely.
+        common = [s for s in r1[0] if s in live_out[0]]
+        live_vs_replay = max(np.nanmax(np.abs(xyz(live_out[0][s]) - xyz(r1[0][s]))) for s in common)
+        print("[ MEASURE ] live vs replay on %d common frames: max |points difference| = %.3g m"
+              % (len(common), live_vs_replay))
+        self.assertGreater(len(common), 0)
+        self.assertLess(live_vs_replay, 1e-3)
+        for name, acc in (("live", live_acc), ("replay", replay_acc)):
+            print("[ MEASURE ] %s: %s" % (name, ", ".join("%s=%.4g" % kv for kv in sorted(acc.items()))))
+            self.assertLessEqual(acc["depth_rms_percent"], 0.1, name)
+            self.assertLessEqual(acc["translation_rms_mm"], 1.0, name)
+            self.assertLessEqual(acc["rotation_rms_deg"], 0.05, name)
+            self.assertGreaterEqual(acc["valid_fraction"], 0.9, name)
+
+
+if __name__ == "__main__":
+    rostest.rosrun(PKG, "replay_round_trip", ReplayRoundTrip)

@@ -1,0 +1,83 @@
+// Benchmark of the whole PoseDelta stage on one core: 100 beam points and a
+// 1024 x 1024 bgr8 image per frame (texture tracking included), simulator
+// frames rendered beforehand so that only the estimator is timed.
+//
+// Usage: benchmark_pose_delta [frames (default 40)]
+#include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <ctime>
+#include <iostream>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "structured_light_stabilizer/pose_delta.h"
+#include "structured_light_stabilizer/simulator.h"
+
+using namespace structured_light_stabilizer;
+
+int main(int argc, char** argv)
+{
+  const int frames = argc > 1 ? std::max(2, std::atoi(argv[1])) : 40;
+  cv::setNumThreads(1);
+
+  struct Case
+  {
+    const char* name;
+    double relief_m;
+    bool use_texture;
+  };
+  const Case cases[] = {{"rough rock 0.15 m, texture on ", 0.15, true},
+                        {"rough rock 0.15 m, texture off", 0.15, false},
+                        {"flat board, texture on        ", 0.0, true}};
+  for (const Case& c : cases)
+  {
+    SimulatorConfig sc;
+    sc.rock.relief_m = c.relief_m;
+    sc.motion.jitter_translation_m = 0.010;
+    sc.motion.jitter_rotation_rad = 1.0 * 3.14159265358979323846 / 180.0;
+    const Simulator sim(sc);
+    std::vector<PoseDeltaInput> inputs;
+    for (int k = 0; k <= frames; ++k)
+    {
+      const SimFrame f = sim.render(0.1 * k);
+      PoseDeltaInput in;
+      in.rows = sc.projector.rows;
+      in.cols = sc.projector.cols;
+      in.points = f.points;
+      in.image = f.image;
+      inputs.push_back(in);
+    }
+    PoseDeltaParams cfg;
+    cfg.use_texture = c.use_texture;
+    PoseDeltaEstimator est(cfg);
+    est.setCamera(sim.camera());
+
+    auto t0 = std::chrono::steady_clock::now();
+    est.process(inputs[0]);
+    const double lock_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+
+    std::vector<double> ms;
+    int valid = 0, features = 0;
+    const std::clock_t c0 = std::clock();
+    for (int k = 1; k <= frames; ++k)
+    {
+      t0 = std::chrono::steady_clock::now();
+      const PoseDeltaResult r = est.process(inputs[k]);
+      ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      valid += r.valid ? 1 : 0;
+      features += r.features_used;
+    }
+    const double cpu_ms = 1000.0 * (std::clock() - c0) / CLOCKS_PER_SEC / frames;
+    std::sort(ms.begin(), ms.end());
+    double sum = 0.0;
+    for (double v : ms)
+      sum += v;
+    std::cout << c.name << ": " << sum / frames << " ms/frame mean, " << ms[ms.size() / 2] << " median, "
+              << ms[ms.size() * 95 / 100] << " p95 (wall), " << cpu_ms << " ms CPU; lock " << lock_ms << " ms; "
+              << valid << "/" << frames << " valid, " << features / frames << " texture features/frame\n";
+  }
+  return 0;
+}
