@@ -187,6 +187,15 @@ struct Simulator::Impl
   std::vector<float> hs;
   double hmin = 0.0, hmax = 0.0;
   double lip_x = 0.0, lip_y = 0.0;  // Lipschitz bounds of the bilinear surface
+  // Per block of kBlock x kBlock cells: lowest vertex and slope bounds, for
+  // the ray caster's empty-space skipping.
+  static constexpr int kBlock = 8;
+  struct BlockBound
+  {
+    double hmin, lip_x, lip_y;
+  };
+  int nbx = 0, nby = 0;
+  std::vector<BlockBound> blocks;
   Eigen::Vector3d sun_dir = Eigen::Vector3d(0.0, 0.0, -1.0);  // rock frame, towards the sun (unit)
   double sky = 0.0;
   Eigen::Isometry3d T_rock_cam0 = Eigen::Isometry3d::Identity();
@@ -313,10 +322,39 @@ struct Simulator::Impl
       }
       return false;  // starts inside the rock
     }
+    // March over blocks of kBlock x kBlock cells: inside a block the ray
+    // cannot meet the surface while it is below the block's lowest vertex,
+    // and from there Lipschitz steps with the block's own slope bound (the
+    // global one is set by the steepest spot of the whole rock) never skip
+    // the first root; a step never leaves the block.
+    const double block_m = kBlock * cell;
     int it = 0;
-    for (; it < 2000 && gap > 2e-4; ++it)
+    for (; it < 4000 && gap > 2e-4; ++it)
     {
-      s += gap / k;
+      const double px = o.x() + s * d.x(), py = o.y() + s * d.y();
+      const int bi = std::min(std::max(static_cast<int>(std::floor((px - x0) / block_m)), 0), nbx - 1);
+      const int bj = std::min(std::max(static_cast<int>(std::floor((py - y0) / block_m)), 0), nby - 1);
+      double s_exit = s1;
+      if (d.x() > 1e-15)
+        s_exit = std::min(s_exit, (x0 + (bi + 1) * block_m - o.x()) / d.x());
+      else if (d.x() < -1e-15)
+        s_exit = std::min(s_exit, (x0 + bi * block_m - o.x()) / d.x());
+      if (d.y() > 1e-15)
+        s_exit = std::min(s_exit, (y0 + (bj + 1) * block_m - o.y()) / d.y());
+      else if (d.y() < -1e-15)
+        s_exit = std::min(s_exit, (y0 + bj * block_m - o.y()) / d.y());
+      s_exit = std::max(s_exit, s);  // rounding at a boundary
+      const BlockBound& bb = blocks[static_cast<size_t>(bj) * nbx + bi];
+      const double s_reach = (bb.hmin - o.z()) / d.z();  // below the block's lowest vertex before this
+      double next;
+      if (s_reach >= s_exit)
+        next = s_exit + 1e-9;  // passes over the whole block
+      else if (s_reach > s)
+        next = s_reach;  // the gap is measured again there
+      else
+        next = std::min(s + gap / (d.z() + bb.lip_x * std::abs(d.x()) + bb.lip_y * std::abs(d.y())), s_exit + 1e-9);
+      // Progress at least as fast as the global bound allows.
+      s = std::max(next, s + gap / k);
       if (s > s1)
         return false;
       gap = height(o.x() + s * d.x(), o.y() + s * d.y()) - (o.z() + s * d.z());
@@ -503,6 +541,30 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl->hmax += 1e-6;
   impl->lip_x = lx / impl->cell * 1.001 + 1e-9;
   impl->lip_y = ly / impl->cell * 1.001 + 1e-9;
+  // Block bounds over the vertices of each block's cells (its border
+  // included): the bilinear surface lies above the lowest vertex of its cell
+  // and its slope is bounded by the steepest cell edge.
+  impl->nbx = (impl->nx + Impl::kBlock - 1) / Impl::kBlock;
+  impl->nby = (impl->ny + Impl::kBlock - 1) / Impl::kBlock;
+  impl->blocks.assign(static_cast<size_t>(impl->nbx) * impl->nby, {1e300, 0.0, 0.0});
+  for (int j = 0; j < vy; ++j)
+  {
+    for (int i = 0; i < vx; ++i)
+    {
+      const int k = impl->vertex(i, j);
+      const double dxh = i < impl->nx ? std::abs(static_cast<double>(impl->h[k + 1]) - impl->h[k]) : 0.0;
+      const double dyh = j < impl->ny ? std::abs(static_cast<double>(impl->h[k + vx]) - impl->h[k]) : 0.0;
+      // A vertex on a block border belongs to the blocks on both sides.
+      for (int bj = std::max(0, (j - 1) / Impl::kBlock); bj <= std::min(impl->nby - 1, j / Impl::kBlock); ++bj)
+        for (int bi = std::max(0, (i - 1) / Impl::kBlock); bi <= std::min(impl->nbx - 1, i / Impl::kBlock); ++bi)
+        {
+          Impl::BlockBound& b = impl->blocks[static_cast<size_t>(bj) * impl->nbx + bi];
+          b.hmin = std::min(b.hmin, static_cast<double>(impl->h[k]) - 1e-6);
+          b.lip_x = std::max(b.lip_x, dxh / impl->cell * 1.001 + 1e-9);
+          b.lip_y = std::max(b.lip_y, dyh / impl->cell * 1.001 + 1e-9);
+        }
+    }
+  }
 
   impl->sun_dir = config.lighting.sun_direction.normalized();
   impl->sky = config.lighting.sky_ambient;
