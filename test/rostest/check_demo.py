@@ -1,0 +1,40 @@
+#!/usr/bin/env python3
+"""Reads the demo monitor's cumulative figures (~stats) once enough frames
+went through, and asserts them against the stage bounds:
+  dots: recall >= 99.5 %            (SpotDetector issue)
+  depth: RMS <= 0.1 % of distance   (Triangulator issue)
+  pose: translation <= 1.0 mm RMS, rotation <= 0.05 deg RMS, >= 95 % valid
+        (PoseDelta issue bounds, in the demo's own scene)."""
+import time
+import unittest
+
+import rospy
+import rostest
+from diagnostic_msgs.msg import DiagnosticStatus
+
+
+class DemoAccuracy(unittest.TestCase):
+    def test_demo_meets_stage_bounds(self):
+        rospy.init_node("check_demo")
+        frames = rospy.get_param("~frames", 120)
+        latest = {}
+
+        def on_stats(msg):
+            latest.update({kv.key: float(kv.value) for kv in msg.values})
+
+        rospy.Subscriber("demo_monitor/stats", DiagnosticStatus, on_stats)
+        deadline = time.time() + 120.0
+        while time.time() < deadline and latest.get("pose_messages", 0) < frames:
+            time.sleep(0.5)
+        s = dict(latest)
+        print("[ MEASURE ] demo: %s" % ", ".join("%s=%.4g" % kv for kv in sorted(s.items())))
+        self.assertGreaterEqual(s.get("pose_messages", 0), frames, "too few frames went through: %s" % s)
+        self.assertGreaterEqual(s["recall"], 0.995)
+        self.assertLessEqual(s["depth_rms_percent"], 0.1)
+        self.assertGreaterEqual(s["pose_valid_fraction"], 0.95)
+        self.assertLessEqual(s["translation_rms_mm"], 1.0)
+        self.assertLessEqual(s["rotation_rms_deg"], 0.05)
+
+
+if __name__ == "__main__":
+    rostest.rosrun("structured_light_stabilizer", "demo_accuracy", DemoAccuracy)
