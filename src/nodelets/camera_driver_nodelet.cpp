@@ -222,7 +222,7 @@ private:
     RadiometryModel model = RadiometryModel::kStudyAsStated;
     if (!radiometryModel(radiometry_, &model))
     {
-      NODELET_ERROR("CameraDriver: ~radiometry '%s' is neither 'study' nor 'corrected'; using 'study'",
+      NODELET_ERROR("CameraDriver: unknown ~radiometry '%s' (study | corrected); using 'study'",
                     radiometry_.c_str());
       radiometry_ = "study";
       model = RadiometryModel::kStudyAsStated;
@@ -329,7 +329,7 @@ private:
       RadiometryModel model = RadiometryModel::kStudyAsStated;
       if (!radiometryModel(config.radiometry, &model))
       {
-        NODELET_ERROR("CameraDriver: radiometry '%s' is neither 'study' nor 'corrected'; keeping '%s'",
+        NODELET_WARN("CameraDriver: unknown radiometry '%s' (study | corrected); keeping '%s'",
                       config.radiometry.c_str(), radiometry_.c_str());
         config.radiometry = radiometry_;
         radiometryModel(radiometry_, &model);

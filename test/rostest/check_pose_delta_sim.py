@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """PoseDelta against the simulator's ground truth (pose_delta_sim.test).
 
-Matches pose_delta with sim/ground_truth/pose_delta by stamp. The estimator
-locks on the first map it receives, so the truth of frame k is
-gt_k * gt_lock^-1. Asserts the issue's bounds for a rough rock with jitter
+Matches pose_delta with sim/ground_truth/pose_delta by stamp. The checker
+requests a lock once it receives both topics; the first identity estimate after
+it is the reference frame, so the truth of frame k is gt_k * gt_lock^-1. Asserts the issue's bounds for a rough rock with jitter
 (translation <= 1.0 mm RMS, rotation <= 0.05 deg RMS, >= 95 % valid), the
 return to identity (< 0.2 mm, < 0.01 deg) at the frames where the rig is back
 at the reference pose, the tf and the lock service.
@@ -35,6 +35,11 @@ def matrix(transform):
     return T
 
 
+def is_identity(tf):
+    t, q = tf.translation, tf.rotation
+    return max(abs(t.x), abs(t.y), abs(t.z), abs(q.x), abs(q.y), abs(q.z)) < 1e-9
+
+
 def angle_deg(R):
     return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0))))
 
@@ -48,17 +53,31 @@ class PoseDeltaSim(unittest.TestCase):
         cls.est, cls.gt = [], {}
         cls.tf_buffer = tf2_ros.Buffer()
         cls.tf_listener = tf2_ros.TransformListener(cls.tf_buffer)
-        rospy.Subscriber("pose_delta", PoseDelta, cls._on_est, queue_size=50)
-        rospy.Subscriber("sim/ground_truth/pose_delta", PoseDelta, cls._on_gt, queue_size=50)
+        est_sub = rospy.Subscriber("pose_delta", PoseDelta, cls._on_est, queue_size=50)
+        gt_sub = rospy.Subscriber("sim/ground_truth/pose_delta", PoseDelta, cls._on_gt, queue_size=50)
+        # The reference must be a frame whose ground truth this checker has:
+        # once both subscriptions are connected, ask for a lock; the first
+        # identity estimate after it is the new reference frame.
+        deadline = time.time() + 30.0
+        while time.time() < deadline and (est_sub.get_num_connections() == 0 or gt_sub.get_num_connections() == 0):
+            time.sleep(0.1)
+        rospy.wait_for_service("pose_delta/lock", 30.0)
+        lock = rospy.ServiceProxy("pose_delta/lock", Trigger)
+        while time.time() < deadline and not lock().success:
+            time.sleep(0.2)
+        with cls.lock:
+            mark = len(cls.est)
         deadline = time.time() + 70.0
         while time.time() < deadline:
             with cls.lock:
-                if len(cls.est) >= cls.frames:
+                if len(cls.est) - mark >= cls.frames:
                     break
             time.sleep(0.2)
         time.sleep(0.5)
         with cls.lock:
-            cls.pairs = [(e, cls.gt[e.header.stamp]) for e in cls.est if e.header.stamp in cls.gt]
+            after = cls.est[mark:]
+            first = next((i for i, e in enumerate(after) if is_identity(e.transform)), 0)
+            cls.pairs = [(e, cls.gt[e.header.stamp]) for e in after[first:] if e.header.stamp in cls.gt]
 
     @classmethod
     def _on_est(cls, msg):
