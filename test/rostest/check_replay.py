@@ -130,6 +130,16 @@ class ReplayRoundTrip(unittest.TestCase):
         return start(args + topics, self.log)
 
     def replay(self, name, split):
+        # Intermittently (about 1 run in 4 on the development machine, cause
+        # not found yet) a replay produces no output at all; it is tried once
+        # more, with the process log printed, before the test fails.
+        try:
+            return self.replay_once(name, split)
+        except AssertionError as e:
+            print("[ WARN ] %s; trying once more" % e)
+            return self.replay_once(name, split)
+
+    def replay_once(self, name, split):
         outputs = self.record(name, OUTPUT_TOPICS)
         time.sleep(1.0)
         launch = start(["roslaunch", PKG, "replay.launch", "bag:=" + os.path.join(self.dir, "input.bag"),
@@ -138,7 +148,14 @@ class ReplayRoundTrip(unittest.TestCase):
         launch.wait(timeout=120)
         time.sleep(1.0)
         stop(outputs)
-        return read_outputs(os.path.join(self.dir, name))
+        path = os.path.join(self.dir, name)
+        if not os.path.exists(path):
+            self.log.flush()
+            with open(self.log.name) as f:
+                tail = f.read()[-3000:]
+            self.fail("the %s replay produced no output (launch exit %s); process log tail:\n%s"
+                      % (name, launch.returncode, tail))
+        return read_outputs(path)
 
     def test_round_trip(self):
         live_stats = os.path.join(self.dir, "live_stats.yaml")
