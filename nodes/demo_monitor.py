@@ -21,6 +21,7 @@ import rospy
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import PointCloud2
+from std_srvs.srv import Trigger
 from sensor_msgs import point_cloud2
 from structured_light_stabilizer.msg import CentroidArray, PoseDelta
 
@@ -44,6 +45,11 @@ def transform_matrix(tf):
                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
     m[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
     return m
+
+
+def is_identity(tf):
+    t, q = tf.translation, tf.rotation
+    return max(abs(t.x), abs(t.y), abs(t.z), abs(q.x), abs(q.y), abs(q.z)) < 1e-9
 
 
 def pose_error(est, truth):
@@ -71,9 +77,30 @@ class Monitor:
         rospy.Subscriber("pose_delta", PoseDelta, self.on_pose, queue_size=10)
         self.start = rospy.Time.now()
         self.finished = False
+        # The pose error needs the true pose of the reference frame: once the
+        # ground truth and pose_delta both flow, lock a new reference; the
+        # first identity estimate after that is the reference frame.
+        self.locked = False
+        threading.Thread(target=self.lock_reference, daemon=True).start()
         rospy.Timer(rospy.Duration(1.0), self.report)
         # Ctrl-C or roslaunch shutting down: keep the figures of the run.
         rospy.on_shutdown(lambda: None if self.finished else self.write_stats())
+
+    def lock_reference(self):
+        while not rospy.is_shutdown():
+            with self.lock:
+                flowing = bool(self.gt_pose) and self.total["pose_n"] > 0
+            if flowing:
+                try:
+                    rospy.wait_for_service("pose_delta/lock", 5.0)
+                    if rospy.ServiceProxy("pose_delta/lock", Trigger)().success:
+                        rospy.loginfo("demo_monitor: reference locked for the accuracy figures")
+                        with self.lock:
+                            self.locked = True
+                        return
+                except (rospy.ServiceException, rospy.ROSException):
+                    pass
+            rospy.sleep(0.5)
 
     @staticmethod
     def _empty():
@@ -149,9 +176,11 @@ class Monitor:
             for acc in (self.window, self.total):
                 acc["pose_valid"] += 1
             truth_now = self.gt_pose.get(msg.header.stamp)
-            if truth_now is None:
+            if truth_now is None or not self.locked:
                 return
             if self.ref_truth is None:
+                if not is_identity(msg.transform):
+                    return  # a frame processed before the lock took effect
                 # auto_lock: the first valid map is the reference, so the
                 # estimate is relative to that frame's true pose (kept here:
                 # the history of ground truth is only HISTORY frames long).
