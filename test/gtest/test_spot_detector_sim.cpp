@@ -17,66 +17,21 @@
 
 #include "structured_light_stabilizer/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
+#include "spot_score.h"
 
 using namespace structured_light_stabilizer;
+using structured_light_stabilizer::test::Score;
 
 namespace
 {
-struct Score
-{
-  double sum_sq = 0;
-  int matched = 0, truth = 0, false_spots = 0, frames = 0;
-  double rms() const { return matched ? std::sqrt(sum_sq / matched) : NAN; }
-  double recall() const { return truth ? double(matched) / truth : NAN; }
-  double falsePerFrame() const { return frames ? double(false_spots) / frames : NAN; }
-  void add(const Score& o)
-  {
-    sum_sq += o.sum_sq;
-    matched += o.matched;
-    truth += o.truth;
-    false_spots += o.false_spots;
-    frames += o.frames;
-  }
-};
-
-// Nearest neighbour within 3 px, closest pairs first, each used once.
+// Scores against the pixels of the visible beams.
 Score score(const Spots& spots, const SimFrame& f)
 {
-  struct Pair
-  {
-    double d;
-    size_t s, t;
-  };
-  std::vector<Pair> pairs;
-  int visible = 0;
+  std::vector<cv::Point2d> truth;
   for (size_t t = 0; t < f.visible.size(); ++t)
-  {
-    if (!f.visible[t])
-      continue;
-    ++visible;
-    for (size_t s = 0; s < spots.size(); ++s)
-    {
-      const double d = std::hypot(spots[s].x - f.pixels[t].x, spots[s].y - f.pixels[t].y);
-      if (d < 3.0)
-        pairs.push_back({d, s, t});
-    }
-  }
-  std::sort(pairs.begin(), pairs.end(), [](const Pair& a, const Pair& b) { return a.d < b.d; });
-  std::vector<char> used_s(spots.size(), 0), used_t(f.visible.size(), 0);
-  Score sc;
-  for (const Pair& p : pairs)
-  {
-    if (used_s[p.s] || used_t[p.t])
-      continue;
-    used_s[p.s] = used_t[p.t] = 1;
-    sc.sum_sq += p.d * p.d;
-    ++sc.matched;
-  }
-  sc.truth = visible;
-  for (char u : used_s)
-    sc.false_spots += u ? 0 : 1;
-  sc.frames = 1;
-  return sc;
+    if (f.visible[t])
+      truth.push_back(f.pixels[t]);
+  return test::score(spots, truth);
 }
 
 void print(const std::string& what, const Score& s)
