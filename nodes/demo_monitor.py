@@ -8,11 +8,22 @@ Line printed each second:
   since the reference frame, share of valid pose deltas, and two latencies to
   pose_delta arrival: from image acquisition (the header stamp, which for the
   simulator includes its rendering) and from the image's publication (the
-  pipeline's own latency).
+  pipeline's own latency; the ground truth, published by the driver right
+  beside the image, marks the publication).
+
+Outputs and ground truth are paired by header stamp in whichever order they
+arrive: on a loaded machine this monitor's ground-truth callbacks can lag
+behind the pipeline's outputs.
+
+Dropped frames: a frame published by the driver whose pose_delta has not
+arrived IN_FLIGHT_S after publication. Frames published before the first
+pose_delta arrived (the lazy subscriptions are still connecting) are counted
+as warm-up, not as dropped; frames still in flight at the end are not counted.
 
 The cumulative figures are published on ~stats (diagnostic_msgs/DiagnosticStatus)
 and written as YAML to ~stats_file at exit, for the demo rostest.
 """
+import collections
 import math
 import threading
 
@@ -22,41 +33,37 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
-from sensor_msgs import point_cloud2
+from structured_light_stabilizer.evaluation import cloud_xyz, is_identity, pose_error, transform_matrix
 from structured_light_stabilizer.msg import CentroidArray, PoseDelta
 
-HISTORY = 300  # frames of ground truth kept for matching by stamp
+HISTORY = 300  # frames kept while waiting for their partner stamp
+IN_FLIGHT_S = 1.0  # a frame without pose_delta this long after its publication is dropped
 
 
-def cloud_xyz(msg):
-    pts = np.array(list(point_cloud2.read_points(msg, field_names=("x", "y", "z"), skip_nans=False)),
-                   dtype=np.float64)
-    return pts.reshape(-1, 3) if pts.size else np.zeros((0, 3))
+class StampPairs:
+    """Pairs an output with the ground truth of the same header stamp,
+    whichever comes first; on_pair(stamp, output, truth) runs when both are
+    in. The caller serialises the calls."""
 
+    def __init__(self, on_pair):
+        self.on_pair = on_pair
+        self.waiting = ({}, {})  # outputs, truths without a partner yet
 
-def transform_matrix(tf):
-    q = tf.rotation
-    x, y, z, w = q.x, q.y, q.z, q.w
-    n = math.sqrt(x * x + y * y + z * z + w * w) or 1.0
-    x, y, z, w = x / n, y / n, z / n, w / n
-    m = np.eye(4)
-    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
-    return m
+    def _add(self, side, stamp, value):
+        partner = self.waiting[1 - side].pop(stamp, None)
+        if partner is None:
+            self.waiting[side][stamp] = value
+            while len(self.waiting[side]) > HISTORY:
+                self.waiting[side].pop(next(iter(self.waiting[side])))
+            return
+        output, truth = (value, partner) if side == 0 else (partner, value)
+        self.on_pair(stamp, output, truth)
 
+    def output(self, stamp, value):
+        self._add(0, stamp, value)
 
-def is_identity(tf):
-    t, q = tf.translation, tf.rotation
-    return max(abs(t.x), abs(t.y), abs(t.z), abs(q.x), abs(q.y), abs(q.z)) < 1e-9
-
-
-def pose_error(est, truth):
-    """Translation (m) and rotation (deg) of est * truth^-1."""
-    e = est @ np.linalg.inv(truth)
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(e[:3, :3]) - 1.0) / 2.0))))
-    return float(np.linalg.norm(e[:3, 3])), angle
+    def truth(self, stamp, value):
+        self._add(1, stamp, value)
 
 
 class Monitor:
@@ -64,7 +71,20 @@ class Monitor:
         self.duration = float(rospy.get_param("~duration", 0.0))
         self.stats_file = rospy.get_param("~stats_file", "")
         self.lock = threading.Lock()
-        self.gt_points, self.gt_pose, self.gt_visible, self.published_at = {}, {}, {}, {}
+        self.spots = StampPairs(self.pair_spots)
+        self.points = StampPairs(self.pair_points)
+        self.poses = StampPairs(self.pair_pose)
+        self.published_at = collections.OrderedDict()  # stamp -> arrival of its ground truth
+        self.delivered = collections.OrderedDict()  # stamps whose pose_delta has arrived
+        self.pending = {}  # stamp -> publication time, until its pose_delta arrives
+        self.first_pose_stamp = None
+        self.truth_seen = False
+        # The pose error needs the true pose of the reference frame: once the
+        # ground truth and pose_delta both flow, lock a new reference; the
+        # first identity estimate stamped after the last estimate seen before
+        # the lock is the reference frame.
+        self.locked_after = None
+        self.last_pose_stamp = None
         self.ref_truth = None
         self.window = self._empty()
         self.total = self._empty()
@@ -77,10 +97,6 @@ class Monitor:
         rospy.Subscriber("pose_delta", PoseDelta, self.on_pose, queue_size=10)
         self.start = rospy.Time.now()
         self.finished = False
-        # The pose error needs the true pose of the reference frame: once the
-        # ground truth and pose_delta both flow, lock a new reference; the
-        # first identity estimate after that is the reference frame.
-        self.locked = False
         threading.Thread(target=self.lock_reference, daemon=True).start()
         rospy.Timer(rospy.Duration(1.0), self.report)
         # Ctrl-C or roslaunch shutting down: keep the figures of the run.
@@ -89,14 +105,15 @@ class Monitor:
     def lock_reference(self):
         while not rospy.is_shutdown():
             with self.lock:
-                flowing = bool(self.gt_pose) and self.total["pose_n"] > 0
+                flowing = self.truth_seen and self.last_pose_stamp is not None
+                before = self.last_pose_stamp
             if flowing:
                 try:
                     rospy.wait_for_service("pose_delta/lock", 5.0)
                     if rospy.ServiceProxy("pose_delta/lock", Trigger)().success:
                         rospy.loginfo("demo_monitor: reference locked for the accuracy figures")
                         with self.lock:
-                            self.locked = True
+                            self.locked_after = before
                         return
                 except (rospy.ServiceException, rospy.ROSException):
                     pass
@@ -104,104 +121,126 @@ class Monitor:
 
     @staticmethod
     def _empty():
-        return {"published": 0, "frames": 0, "dots_found": 0, "dots_visible": 0, "depth_sq": 0.0, "depth_rel_sq": 0.0,
-                "depth_n": 0, "pose_n": 0, "pose_valid": 0, "pose_err_n": 0, "trans_sq": 0.0, "rot_sq": 0.0,
-                "latency": [], "pipeline_latency": []}
+        return {"published": 0, "dropped": 0, "warmup": 0, "frames": 0, "dots_found": 0, "dots_visible": 0,
+                "depth_sq": 0.0, "depth_rel_sq": 0.0, "depth_n": 0, "pose_n": 0, "pose_valid": 0, "pose_err_n": 0,
+                "trans_sq": 0.0, "rot_sq": 0.0, "latency": [], "pipeline_latency": []}
+
+    def _add(self, key, value=1):
+        for acc in (self.window, self.total):
+            acc[key] += value
 
     @staticmethod
-    def _trim(d):
+    def _remember(d, key, value):
+        d[key] = value
         while len(d) > HISTORY:
-            d.pop(next(iter(d)))
+            d.popitem(last=False)
 
+    # --- callbacks: ground truth ------------------------------------------
     def on_gt_points(self, msg):
+        xyz = cloud_xyz(msg)
         with self.lock:
-            self.gt_points[msg.header.stamp] = cloud_xyz(msg)
-            self._trim(self.gt_points)
+            self.points.truth(msg.header.stamp, xyz)
 
     def on_gt_pose(self, msg):
+        now = rospy.Time.now()
         with self.lock:
-            self.gt_pose[msg.header.stamp] = transform_matrix(msg.transform)
-            self._trim(self.gt_pose)
-            # The driver publishes the ground truth right beside the image, so
-            # its arrival time is the image's publication time.
-            self.published_at[msg.header.stamp] = rospy.Time.now()
-            self._trim(self.published_at)
-            for acc in (self.window, self.total):
-                acc["published"] += 1
+            self.truth_seen = True
+            self._add("published")
+            stamp = msg.header.stamp
+            self._remember(self.published_at, stamp, now)
+            if stamp not in self.delivered:
+                self.pending[stamp] = now
+            self.poses.truth(stamp, transform_matrix(msg.transform))
 
     def on_gt_spots(self, msg):
         with self.lock:
-            self.gt_visible[msg.header.stamp] = len(msg.centroids)
-            self._trim(self.gt_visible)
+            self.spots.truth(msg.header.stamp, len(msg.centroids))
 
+    # --- callbacks: pipeline outputs --------------------------------------
     def on_spots(self, msg):
         with self.lock:
-            visible = self.gt_visible.get(msg.header.stamp)
-            if visible is None:
-                return
-            for acc in (self.window, self.total):
-                acc["frames"] += 1
-                acc["dots_found"] += min(len(msg.centroids), visible)
-                acc["dots_visible"] += visible
+            self.spots.output(msg.header.stamp, len(msg.centroids))
 
     def on_points(self, msg):
-        est = cloud_xyz(msg)
+        xyz = cloud_xyz(msg)
         with self.lock:
-            gt = self.gt_points.get(msg.header.stamp)
-        if gt is None or gt.shape != est.shape:
+            self.points.output(msg.header.stamp, xyz)
+
+    def on_pose(self, msg):
+        now = rospy.Time.now()
+        stamp = msg.header.stamp
+        with self.lock:
+            self._add("pose_n")
+            self._add("latency", [(now - stamp).to_sec()])
+            published = self.published_at.get(stamp)
+            if published is not None:  # else this monitor's ground truth lags: no figure
+                self._add("pipeline_latency", [(now - published).to_sec()])
+            self.pending.pop(stamp, None)
+            self._remember(self.delivered, stamp, True)
+            if self.first_pose_stamp is None:
+                self.first_pose_stamp = stamp
+            if self.last_pose_stamp is None or stamp > self.last_pose_stamp:
+                self.last_pose_stamp = stamp
+            if msg.valid:
+                self._add("pose_valid")
+            self.poses.output(stamp, msg)
+
+    # --- pairs (called under the lock) -------------------------------------
+    def pair_spots(self, _stamp, found, visible):
+        self._add("frames")
+        self._add("dots_found", min(found, visible))
+        self._add("dots_visible", visible)
+
+    def pair_points(self, _stamp, est, gt):
+        if gt.shape != est.shape:
             return
         ok = np.isfinite(est).all(axis=1) & np.isfinite(gt).all(axis=1)
         if not ok.any():
             return
         err = np.linalg.norm(est[ok] - gt[ok], axis=1)
         rel = err / np.linalg.norm(gt[ok], axis=1)
-        with self.lock:
-            for acc in (self.window, self.total):
-                acc["depth_sq"] += float(np.sum(err ** 2))
-                acc["depth_rel_sq"] += float(np.sum(rel ** 2))
-                acc["depth_n"] += int(ok.sum())
+        self._add("depth_sq", float(np.sum(err ** 2)))
+        self._add("depth_rel_sq", float(np.sum(rel ** 2)))
+        self._add("depth_n", int(ok.sum()))
 
-    def on_pose(self, msg):
-        now = rospy.Time.now()
-        latency = (now - msg.header.stamp).to_sec()
-        with self.lock:
-            published = self.published_at.get(msg.header.stamp)
-            for acc in (self.window, self.total):
-                acc["pose_n"] += 1
-                acc["latency"].append(latency)
-                if published is not None:
-                    acc["pipeline_latency"].append((now - published).to_sec())
-            if not msg.valid:
-                return
-            for acc in (self.window, self.total):
-                acc["pose_valid"] += 1
-            truth_now = self.gt_pose.get(msg.header.stamp)
-            if truth_now is None or not self.locked:
-                return
-            if self.ref_truth is None:
-                if not is_identity(msg.transform):
-                    return  # a frame processed before the lock took effect
-                # auto_lock: the first valid map is the reference, so the
-                # estimate is relative to that frame's true pose (kept here:
-                # the history of ground truth is only HISTORY frames long).
-                self.ref_truth = truth_now
-            truth = truth_now @ np.linalg.inv(self.ref_truth)
-            t_err, r_err = pose_error(transform_matrix(msg.transform), truth)
-            for acc in (self.window, self.total):
-                acc["pose_err_n"] += 1
-                acc["trans_sq"] += t_err ** 2
-                acc["rot_sq"] += r_err ** 2
+    def pair_pose(self, stamp, msg, truth_now):
+        if not msg.valid or self.locked_after is None:
+            return
+        if self.ref_truth is None:
+            if stamp <= self.locked_after or not is_identity(msg.transform):
+                return  # processed before the lock took effect
+            self.ref_truth = truth_now
+        truth = truth_now @ np.linalg.inv(self.ref_truth)
+        t_err, r_err = pose_error(transform_matrix(msg.transform), truth)
+        self._add("pose_err_n")
+        self._add("trans_sq", t_err ** 2)
+        self._add("rot_sq", r_err ** 2)
+
+    # --- figures ------------------------------------------------------------
+    def count_dropped(self, now):
+        """Moves the frames that are overdue from pending to the dropped or
+        warm-up counts (caller holds the lock)."""
+        for stamp in [s for s, t in self.pending.items() if (now - t).to_sec() > IN_FLIGHT_S]:
+            del self.pending[stamp]
+            if self.first_pose_stamp is None or stamp < self.first_pose_stamp:
+                self._add("warmup")
+            else:
+                self._add("dropped")
+                rospy.logwarn_throttle(5.0, "demo_monitor: no pose_delta for the frame stamped %.3f" % stamp.to_sec())
 
     @staticmethod
     def summary(acc):
         def rms(sq, n):
             return math.sqrt(sq / n) if n else float("nan")
-        lat = np.array(acc["latency"]) if acc["latency"] else np.array([float("nan")])
-        pipe = np.array(acc["pipeline_latency"]) if acc["pipeline_latency"] else np.array([float("nan")])
+
+        def pct(values, q):
+            return 1e3 * float(np.percentile(values, q)) if values else float("nan")
+
         return {
             "frames_published": acc["published"],
             "frames": acc["frames"],
-            "frames_dropped": max(0, acc["published"] - acc["pose_n"]),
+            "frames_dropped": acc["dropped"],
+            "frames_warmup": acc["warmup"],
             "dots_found": acc["dots_found"],
             "dots_visible": acc["dots_visible"],
             "recall": acc["dots_found"] / acc["dots_visible"] if acc["dots_visible"] else float("nan"),
@@ -209,16 +248,18 @@ class Monitor:
             "depth_rms_percent": 100.0 * rms(acc["depth_rel_sq"], acc["depth_n"]),
             "pose_messages": acc["pose_n"],
             "pose_valid_fraction": acc["pose_valid"] / acc["pose_n"] if acc["pose_n"] else float("nan"),
+            "pose_compared": acc["pose_err_n"],
             "translation_rms_mm": 1e3 * rms(acc["trans_sq"], acc["pose_err_n"]),
             "rotation_rms_deg": rms(acc["rot_sq"], acc["pose_err_n"]),
-            "latency_median_ms": 1e3 * float(np.median(lat)),
-            "latency_p99_ms": 1e3 * float(np.percentile(lat, 99)),
-            "pipeline_latency_median_ms": 1e3 * float(np.median(pipe)),
-            "pipeline_latency_p99_ms": 1e3 * float(np.percentile(pipe, 99)),
+            "latency_median_ms": pct(acc["latency"], 50),
+            "latency_p99_ms": pct(acc["latency"], 99),
+            "pipeline_latency_median_ms": pct(acc["pipeline_latency"], 50),
+            "pipeline_latency_p99_ms": pct(acc["pipeline_latency"], 99),
         }
 
     def report(self, _event):
         with self.lock:
+            self.count_dropped(rospy.Time.now())
             w = self.summary(self.window)
             t = self.summary(self.total)
             self.window = self._empty()
@@ -234,17 +275,18 @@ class Monitor:
         status.values = [KeyValue(k, repr(v)) for k, v in t.items()]
         self.stats_pub.publish(status)
         if self.duration > 0 and elapsed >= self.duration:
-            self.finish(t)
+            self.finish()
 
     def write_stats(self):
         with self.lock:
+            self.count_dropped(rospy.Time.now())
             total = self.summary(self.total)
         if self.stats_file:
             with open(self.stats_file, "w") as f:
                 yaml.safe_dump({k: float(v) for k, v in total.items()}, f)
         return total
 
-    def finish(self, _total):
+    def finish(self):
         total = self.write_stats()
         rospy.loginfo("demo over after %.0f s: %s", self.duration,
                       ", ".join("%s=%.4g" % (k, v) for k, v in total.items()))

@@ -19,29 +19,9 @@ import rostest
 import tf2_ros
 from std_srvs.srv import Trigger
 from structured_light_stabilizer.msg import PoseDelta
+from structured_light_stabilizer.evaluation import is_identity, rotation_angle_deg, transform_matrix
 
 PKG = "structured_light_stabilizer"
-
-
-def matrix(transform):
-    q = transform.rotation
-    x, y, z, w = q.x, q.y, q.z, q.w
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = [transform.translation.x, transform.translation.y, transform.translation.z]
-    return T
-
-
-def is_identity(tf):
-    t, q = tf.translation, tf.rotation
-    return max(abs(t.x), abs(t.y), abs(t.z), abs(q.x), abs(q.y), abs(q.z)) < 1e-9
-
-
-def angle_deg(R):
-    return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0))))
 
 
 class PoseDeltaSim(unittest.TestCase):
@@ -91,13 +71,13 @@ class PoseDeltaSim(unittest.TestCase):
 
     def errors(self):
         self.assertGreater(len(self.pairs), 20, "too few pose_delta messages matched the ground truth")
-        gt_lock_inv = np.linalg.inv(matrix(self.pairs[0][1].transform))
+        gt_lock_inv = np.linalg.inv(transform_matrix(self.pairs[0][1].transform))
         out = []
         for est, gt in self.pairs[1:]:
-            truth = matrix(gt.transform) @ gt_lock_inv
-            E = matrix(est.transform) @ np.linalg.inv(truth)
-            out.append((np.linalg.norm(E[:3, 3]) * 1e3, angle_deg(E[:3, :3]), est.valid, est.status,
-                        np.linalg.norm(truth[:3, 3]) * 1e3, angle_deg(truth[:3, :3])))
+            truth = transform_matrix(gt.transform) @ gt_lock_inv
+            E = transform_matrix(est.transform) @ np.linalg.inv(truth)
+            out.append((np.linalg.norm(E[:3, 3]) * 1e3, rotation_angle_deg(E[:3, :3]), est.valid, est.status,
+                        np.linalg.norm(truth[:3, 3]) * 1e3, rotation_angle_deg(truth[:3, :3])))
         return out
 
     def test_accuracy_rough_rock_jitter(self):

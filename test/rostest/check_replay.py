@@ -13,22 +13,32 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 import unittest
 
 import numpy as np
 import rosbag
+import rosgraph
 import yaml
 import rospy
 import rostest
-from sensor_msgs import point_cloud2
+from structured_light_stabilizer.evaluation import cloud_xyz, pose_error, transform_matrix
 
 PKG = "structured_light_stabilizer"
 INPUT_TOPICS = ["/camera/image_raw", "/camera/camera_info", "/sim/ground_truth/points",
                 "/sim/ground_truth/pose_delta", "/sim/ground_truth/spots"]
 OUTPUT_TOPICS = ["/points", "/pose_delta"]
 RECORD_S = 6
+
+
+def artifact_dir():
+    """The test results folder (rostest passes --gtest_output=xml:<file>)."""
+    for arg in sys.argv:
+        if arg.startswith("--gtest_output=xml:"):
+            return os.path.dirname(arg.split(":", 1)[1])
+    return tempfile.gettempdir()
 
 
 def start(args, log):
@@ -43,22 +53,6 @@ def stop(proc, timeout=20.0):
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-
-
-def xyz(msg):
-    return np.array(list(point_cloud2.read_points(msg, field_names=("x", "y", "z"), skip_nans=False)),
-                    dtype=np.float64).reshape(-1, 3)
-
-
-def matrix(tf):
-    q, t = tf.rotation, tf.translation
-    x, y, z, w = q.x, q.y, q.z, q.w
-    m = np.eye(4)
-    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = [t.x, t.y, t.z]
-    return m
 
 
 def read_outputs(path):
@@ -77,9 +71,9 @@ def read_truth(path):
     with rosbag.Bag(path) as bag:
         for topic, msg, _ in bag.read_messages(topics=["/sim/ground_truth/points", "/sim/ground_truth/pose_delta"]):
             if topic.endswith("points"):
-                points[msg.header.stamp.to_nsec()] = xyz(msg)
+                points[msg.header.stamp.to_nsec()] = cloud_xyz(msg)
             else:
-                poses[msg.header.stamp.to_nsec()] = matrix(msg.transform)
+                poses[msg.header.stamp.to_nsec()] = transform_matrix(msg.transform)
     return points, poses
 
 
@@ -92,7 +86,7 @@ def accuracy(outputs, truth):
     rel = []
     for stamp, msg in points.items():
         if stamp in gt_points:
-            est, gt = xyz(msg), gt_points[stamp]
+            est, gt = cloud_xyz(msg), gt_points[stamp]
             ok = np.isfinite(est).all(axis=1) & np.isfinite(gt).all(axis=1)
             rel.extend(np.linalg.norm(est[ok] - gt[ok], axis=1) / np.linalg.norm(gt[ok], axis=1))
     t_sq, r_sq, valid, ref = [], [], 0, None
@@ -104,9 +98,9 @@ def accuracy(outputs, truth):
         if ref is None:
             ref = gt_poses[stamp]
         truth_rel = gt_poses[stamp] @ np.linalg.inv(ref)
-        e = matrix(msg.transform) @ np.linalg.inv(truth_rel)
-        t_sq.append(np.sum(e[:3, 3] ** 2))
-        r_sq.append(math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(e[:3, :3]) - 1) / 2)))) ** 2)
+        t_err, r_err = pose_error(transform_matrix(msg.transform), truth_rel)
+        t_sq.append(t_err ** 2)
+        r_sq.append(r_err ** 2)
     rms = lambda v: math.sqrt(np.mean(v)) if len(v) else float("nan")
     return {"depth_rms_percent": 100 * rms(np.square(rel)), "translation_rms_mm": 1e3 * rms(t_sq),
             "rotation_rms_deg": rms(r_sq), "valid_fraction": valid / max(1, len(poses)),
@@ -124,27 +118,33 @@ class ReplayRoundTrip(unittest.TestCase):
         shutil.rmtree(self.dir, ignore_errors=True)
 
     def record(self, name, topics, duration=None):
-        args = ["rosbag", "record", "-O", os.path.join(self.dir, name), "--quiet"]
+        """Starts rosbag record and returns once the master lists it as a
+        subscriber of every topic: a recorder started just before the
+        pipeline can otherwise connect after the first messages are out
+        (python start-up of `rosbag record` takes seconds on a loaded
+        machine), and the bag misses them."""
+        node = "/recorder_" + os.path.splitext(name)[0]
+        args = ["rosbag", "record", "-O", os.path.join(self.dir, name), "__name:=" + node[1:]]
         if duration:
             args.append("--duration=%d" % duration)
-        return start(args + topics, self.log)
+        proc = start(args + topics, self.log)
+        master = rosgraph.Master(rospy.get_name())
+        deadline = time.time() + 60.0
+        while time.time() < deadline and proc.poll() is None:
+            subscribers = dict(master.getSystemState()[1])
+            if all(node in subscribers.get(t, []) for t in topics):
+                return proc
+            time.sleep(0.1)
+        self.fail("rosbag record for %s did not subscribe to %s within 60 s (exit %s)" % (name, topics, proc.poll()))
 
     def replay(self, name, split):
-        # Intermittently (cause not found yet: seen in about 1 replay in 4 on
-        # the development machine) a replay produces no output at all; it is
-        # tried up to three times, with the process log printed each time.
-        for attempt in range(3):
-            time.sleep(3.0)  # let the previous launch's names leave the master
-            try:
-                return self.replay_once(name, split)
-            except AssertionError as e:
-                if attempt == 2:
-                    raise
-                print("[ WARN ] %s; trying again" % e)
-
-    def replay_once(self, name, split):
+        time.sleep(2.0)  # let the previous launch's names leave the master
+        # The previous replay left /use_sim_time set: the recorder would wait
+        # for /clock; it records on wall time (the outputs are compared by
+        # header stamp), replay.launch sets sim time again for the pipeline.
+        if rospy.has_param("/use_sim_time"):
+            rospy.delete_param("/use_sim_time")
         outputs = self.record(name, OUTPUT_TOPICS)
-        time.sleep(1.0)
         launch = start(["roslaunch", PKG, "replay.launch", "bag:=" + os.path.join(self.dir, "input.bag"),
                         "rate:=0.5", "start_delay:=3", "required:=true", "split:=%s" % str(split).lower()],
                        self.log)
@@ -154,10 +154,13 @@ class ReplayRoundTrip(unittest.TestCase):
         path = os.path.join(self.dir, name)
         if not os.path.exists(path):
             self.log.flush()
+            kept = os.path.join(artifact_dir(), "replay_processes.log")
+            shutil.copy(self.log.name, kept)
             with open(self.log.name) as f:
                 tail = f.read()[-3000:]
-            self.fail("the %s replay produced no output (launch exit %s); process log tail:\n%s"
-                      % (name, launch.returncode, tail))
+            self.fail("the %s replay produced no output (launch exit %s, recorder exit %s, files %s; whole log in %s); "
+                      "process log tail:\n%s" % (name, launch.returncode, outputs.returncode,
+                                                  sorted(os.listdir(self.dir)), kept, tail))
         return read_outputs(path)
 
     def test_round_trip(self):
@@ -196,7 +199,7 @@ class ReplayRoundTrip(unittest.TestCase):
             for stamp, msg in r1[1].items():
                 o = other[1][stamp]
                 self.assertEqual((o.valid, o.status, o.points_used), (msg.valid, msg.status, msg.points_used))
-                self.assertTrue(np.array_equal(matrix(o.transform), matrix(msg.transform)), "%s: pose differs" % name)
+                self.assertTrue(np.array_equal(transform_matrix(o.transform), transform_matrix(msg.transform)), "%s: pose differs" % name)
                 self.assertEqual(tuple(o.covariance), tuple(msg.covariance))
 
         # The live run locked its reference before recording began, so its
@@ -207,7 +210,7 @@ class ReplayRoundTrip(unittest.TestCase):
         replay_acc = accuracy(r1, truth)
         # Live and replay see the same frames: their clouds agree closely.
         common = [s for s in r1[0] if s in live_out[0]]
-        live_vs_replay = max(np.nanmax(np.abs(xyz(live_out[0][s]) - xyz(r1[0][s]))) for s in common)
+        live_vs_replay = max(np.nanmax(np.abs(cloud_xyz(live_out[0][s]) - cloud_xyz(r1[0][s]))) for s in common)
         print("[ MEASURE ] live vs replay on %d common frames: max |points difference| = %.3g m"
               % (len(common), live_vs_replay))
         self.assertGreater(len(common), 0)

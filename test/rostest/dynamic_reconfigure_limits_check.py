@@ -30,6 +30,7 @@ from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import PointCloud2
 
 from structured_light_stabilizer.msg import PoseDelta
+from structured_light_stabilizer.evaluation import cloud_xyz
 
 PKG = "structured_light_stabilizer"
 SERVERS = ("camera_driver", "spot_detector", "triangulator", "pose_delta")
@@ -48,13 +49,6 @@ INCONSISTENT = [
      [("texture_min_features", "texture_max_features")], ("texture_min_features",)),
     ("pose_delta", {"texture_window_px": 10}, [], ("texture_window_px", "odd")),
 ]
-
-
-def cloud_xyz(msg):
-    offs = {f.name: f.offset for f in msg.fields}
-    raw = np.frombuffer(bytes(msg.data), np.uint8).reshape(-1, msg.point_step)
-    return np.stack([raw[:, offs[k]:offs[k] + 4].copy().view(np.float32).reshape(-1) for k in ("x", "y", "z")],
-                    axis=1).astype(np.float64)
 
 
 class DynamicReconfigureLimits(unittest.TestCase):

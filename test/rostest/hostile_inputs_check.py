@@ -34,6 +34,7 @@ from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from structured_light_stabilizer.msg import CentroidArray, PoseDelta
+from structured_light_stabilizer.evaluation import cloud_xyz, pose_error, transform_matrix
 
 PKG = "structured_light_stabilizer"
 BIG = 1 << 24  # rospy socket buffer for 3 MB images
@@ -51,27 +52,6 @@ for _depth, _size in (("8U", 1), ("8S", 1), ("16U", 2), ("16S", 2), ("32S", 4), 
     for _ch in range(1, 5):
         ENCODINGS["%sC%d" % (_depth, _ch)] = _size * _ch
 ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1")  # SpotDetector's inputs (SPEC §2; 8UC1 = mono8)
-
-
-def cloud_xyz(msg):
-    """(N, 3) float64 of an organised x y z float32 cloud, NaN kept."""
-    offs = {f.name: f.offset for f in msg.fields}
-    raw = np.frombuffer(bytes(msg.data), np.uint8).reshape(-1, msg.point_step)
-    cols = [raw[:, offs[k]:offs[k] + 4].copy().view(np.float32).reshape(-1) for k in ("x", "y", "z")]
-    return np.stack(cols, axis=1).astype(np.float64)
-
-
-def matrix(tf):
-    q = tf.rotation
-    x, y, z, w = q.x, q.y, q.z, q.w
-    n = math.sqrt(x * x + y * y + z * z + w * w) or 1.0
-    x, y, z, w = x / n, y / n, z / n, w / n
-    m = np.eye(4)
-    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = [tf.translation.x, tf.translation.y, tf.translation.z]
-    return m
 
 
 def image(width, height, encoding, step=None, data=None, fill=0):
@@ -290,10 +270,10 @@ class HostileInputs(unittest.TestCase):
             truth_now = gt["pose"].get(p.header.stamp)
             if truth_now is None or ref is None:
                 continue
-            truth = matrix(truth_now.transform) @ np.linalg.inv(matrix(gt["pose"][ref].transform))
-            e = matrix(p.transform) @ np.linalg.inv(truth)
-            t_sq += float(np.linalg.norm(e[:3, 3])) ** 2
-            r_sq += math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(e[:3, :3]) - 1) / 2)))) ** 2
+            truth = transform_matrix(truth_now.transform) @ np.linalg.inv(transform_matrix(gt["pose"][ref].transform))
+            t_err, r_err = pose_error(transform_matrix(p.transform), truth)
+            t_sq += t_err ** 2
+            r_sq += r_err ** 2
             n_pose += 1
         depth_rms = 100.0 * math.sqrt(depth_rel_sq / depth_n) if depth_n else float("nan")
         centroid_rms = math.sqrt(centroid_sq / centroid_n) if centroid_n else float("nan")
