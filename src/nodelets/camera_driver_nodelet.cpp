@@ -188,34 +188,108 @@ private:
       *v = Eigen::Vector3d(value[0], value[1], value[2]);
   }
 
+  // A number parameter: unset keeps *v; set but not a number is an error
+  // (roscpp's param() would silently keep the default).
+  void readNumber(ros::NodeHandle& pnh, const std::string& name, double* v)
+  {
+    XmlRpc::XmlRpcValue value;
+    if (!pnh.getParam(name, value))
+      return;
+    if (value.getType() == XmlRpc::XmlRpcValue::TypeDouble)
+      *v = static_cast<double>(value);
+    else if (value.getType() == XmlRpc::XmlRpcValue::TypeInt)
+      *v = static_cast<int>(value);
+    else
+      NODELET_ERROR("CameraDriver: ~%s must be a number, got '%s'; keeping the default %g", name.c_str(),
+                    value.toXml().c_str(), *v);
+  }
+
+  void readBool(ros::NodeHandle& pnh, const std::string& name, bool* v)
+  {
+    XmlRpc::XmlRpcValue value;
+    if (!pnh.getParam(name, value))
+      return;
+    if (value.getType() == XmlRpc::XmlRpcValue::TypeBoolean)
+      *v = static_cast<bool>(value);
+    else
+      NODELET_ERROR("CameraDriver: ~%s must be true or false, got '%s'; keeping the default %s", name.c_str(),
+                    value.toXml().c_str(), *v ? "true" : "false");
+  }
+
+  template <typename Int>
+  void readInteger(ros::NodeHandle& pnh, const std::string& name, Int* v)
+  {
+    XmlRpc::XmlRpcValue value;
+    if (!pnh.getParam(name, value))
+      return;
+    if (value.getType() == XmlRpc::XmlRpcValue::TypeInt && static_cast<int>(value) >= 0)
+      *v = static_cast<Int>(static_cast<int>(value));
+    else
+      NODELET_ERROR("CameraDriver: ~%s must be a non-negative integer, got '%s'; keeping the default %lld",
+                    name.c_str(), value.toXml().c_str(), static_cast<long long>(*v));
+  }
+
   bool setUpSimulator(ros::NodeHandle& pnh)
   {
     SimulatorConfig c;
-    auto get_int = [&](const char* name, int def) { return pnh.param(name, def); };
-    c.rock.seed = static_cast<uint32_t>(get_int("seed", static_cast<int>(c.rock.seed)));
-    c.noise_seed = static_cast<uint32_t>(get_int("noise_seed", static_cast<int>(c.noise_seed)));
-    c.rock.distance_m = pnh.param("rock_distance", c.rock.distance_m);
-    c.rock.width_m = pnh.param("rock_width", c.rock.width_m);
-    c.rock.height_m = pnh.param("rock_height", c.rock.height_m);
-    c.rock.relief_m = pnh.param("rock_relief", c.rock.relief_m);
-    c.rock.tilt_x_rad = pnh.param("rock_tilt_x", c.rock.tilt_x_rad);
-    c.rock.tilt_y_rad = pnh.param("rock_tilt_y", c.rock.tilt_y_rad);
-    c.rock.texture_scale_m = pnh.param("texture_scale", c.rock.texture_scale_m);
-    c.rock.albedo_min = pnh.param("albedo_min", c.rock.albedo_min);
-    c.rock.albedo_max = pnh.param("albedo_max", c.rock.albedo_max);
-    c.rock.step_height_m = pnh.param("rock_step_height", c.rock.step_height_m);
-    c.rock.step_x_m = pnh.param("rock_step_x", c.rock.step_x_m);
-    c.projector.rows = get_int("projector_rows", c.projector.rows);
-    c.projector.cols = get_int("projector_cols", c.projector.cols);
+    // The simulator's parameters (README, "Parameters of the simulator"),
+    // read over the defaults of SimulatorConfig.
+    readInteger(pnh, "seed", &c.rock.seed);
+    readInteger(pnh, "noise_seed", &c.noise_seed);
+    readInteger(pnh, "projector_rows", &c.projector.rows);
+    readInteger(pnh, "projector_cols", &c.projector.cols);
+    readInteger(pnh, "rock_subsample", &c.rock_subsample);
+    readInteger(pnh, "clutter_specks", &c.clutter.green_specks);
+    readInteger(pnh, "clutter_olive", &c.clutter.olive_minerals);
+    readInteger(pnh, "clutter_blobs", &c.clutter.green_blobs);
+    const std::pair<const char*, double*> numbers[] = {
+        {"rock_distance", &c.rock.distance_m},
+        {"rock_width", &c.rock.width_m},
+        {"rock_height", &c.rock.height_m},
+        {"rock_relief", &c.rock.relief_m},
+        {"rock_tilt_x", &c.rock.tilt_x_rad},
+        {"rock_tilt_y", &c.rock.tilt_y_rad},
+        {"texture_scale", &c.rock.texture_scale_m},
+        {"albedo_min", &c.rock.albedo_min},
+        {"albedo_max", &c.rock.albedo_max},
+        {"rock_step_height", &c.rock.step_height_m},
+        {"rock_step_x", &c.rock.step_x_m},
+        {"projector_roll", &c.projector.roll_rad},
+        {"projector_converge_distance", &c.projector.converge_distance_m},
+        {"beam_sigma", &c.projector.beam_sigma_rad},
+        {"power_scale", &c.projector.power_scale},
+        {"sun_level", &c.lighting.sun_level},
+        {"exposure", &c.lighting.exposure},
+        {"jitter_translation", &c.motion.jitter_translation_m},
+        {"jitter_rotation", &c.motion.jitter_rotation_rad},
+        {"jitter_frequency", &c.motion.jitter_frequency_hz},
+        {"step_period", &c.motion.step_period_s},
+        {"return_period", &c.motion.return_period_s},
+        {"read_noise", &c.sensor.read_noise_dn},
+        {"gain", &c.sensor.gain_dn_per_electron},
+        {"focus_distance", &c.sensor.focus_distance_m},
+        {"aperture", &c.sensor.aperture_diameter_m},
+    };
+    for (const auto& p : numbers)
+      readNumber(pnh, p.first, p.second);
+    readBool(pnh, "shot_noise", &c.sensor.shot_noise);
+    readBool(pnh, "vignetting", &c.sensor.natural_vignetting);
+    // ~projector_pitch sets both pitches; ~projector_pitch_x/_y override one.
+    double pitch = c.projector.pitch_x_rad;
+    readNumber(pnh, "projector_pitch", &pitch);
+    c.projector.pitch_x_rad = c.projector.pitch_y_rad = pitch;
+    readNumber(pnh, "projector_pitch_x", &c.projector.pitch_x_rad);
+    readNumber(pnh, "projector_pitch_y", &c.projector.pitch_y_rad);
     readVector3(pnh, "projector_origin", &c.projector.origin_m);
-    const double pitch = pnh.param("projector_pitch", c.projector.pitch_x_rad);
-    c.projector.pitch_x_rad = pnh.param("projector_pitch_x", pitch);
-    c.projector.pitch_y_rad = pnh.param("projector_pitch_y", pitch);
-    c.projector.roll_rad = pnh.param("projector_roll", c.projector.roll_rad);
-    c.projector.converge_distance_m = pnh.param("projector_converge_distance", c.projector.converge_distance_m);
-    c.projector.beam_sigma_rad = pnh.param("beam_sigma", c.projector.beam_sigma_rad);
-    c.projector.power_scale = pnh.param("power_scale", c.projector.power_scale);
-    c.lighting.sun_level = pnh.param("sun_level", c.lighting.sun_level);
+    readVector3(pnh, "drift_velocity", &c.motion.drift_velocity_mps);
+    readVector3(pnh, "drift_angular_velocity", &c.motion.drift_angular_velocity_radps);
+    readVector3(pnh, "step_translation", &c.motion.step_translation_m);
+    std::vector<double> D;
+    if (readVector(pnh, "distortion_coeffs", 5, &D) && !D.empty())
+    {
+      c.sensor.camera.distortion = DistortionModel::kPlumbBob;
+      c.sensor.camera.D = D;
+    }
     // The dot-versus-sun brightness comes from the scene analysis unless
     // ~dot_to_sun_ratio overrides it (negative = not set).
     radiometry_ = pnh.param<std::string>("radiometry", "study");
@@ -228,34 +302,10 @@ private:
       model = RadiometryModel::kStudyAsStated;
       pnh.setParam("radiometry", radiometry_);
     }
-    const double ratio = pnh.param("dot_to_sun_ratio", -1.0);
+    double ratio = -1.0;
+    readNumber(pnh, "dot_to_sun_ratio", &ratio);
     c.lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingConfig::sceneDotToSunRatio(model);
     const std::string ratio_source = ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
-    c.lighting.exposure = pnh.param("exposure", c.lighting.exposure);
-    c.motion.jitter_translation_m = pnh.param("jitter_translation", c.motion.jitter_translation_m);
-    c.motion.jitter_rotation_rad = pnh.param("jitter_rotation", c.motion.jitter_rotation_rad);
-    c.motion.jitter_frequency_hz = pnh.param("jitter_frequency", c.motion.jitter_frequency_hz);
-    readVector3(pnh, "drift_velocity", &c.motion.drift_velocity_mps);
-    readVector3(pnh, "drift_angular_velocity", &c.motion.drift_angular_velocity_radps);
-    c.motion.step_period_s = pnh.param("step_period", c.motion.step_period_s);
-    readVector3(pnh, "step_translation", &c.motion.step_translation_m);
-    c.motion.return_period_s = pnh.param("return_period", c.motion.return_period_s);
-    c.sensor.read_noise_dn = pnh.param("read_noise", c.sensor.read_noise_dn);
-    c.sensor.shot_noise = pnh.param("shot_noise", c.sensor.shot_noise);
-    c.sensor.gain_dn_per_electron = pnh.param("gain", c.sensor.gain_dn_per_electron);
-    c.sensor.focus_distance_m = pnh.param("focus_distance", c.sensor.focus_distance_m);
-    c.sensor.aperture_diameter_m = pnh.param("aperture", c.sensor.aperture_diameter_m);
-    c.sensor.natural_vignetting = pnh.param("vignetting", c.sensor.natural_vignetting);
-    std::vector<double> D;
-    if (readVector(pnh, "distortion_coeffs", 5, &D) && !D.empty())
-    {
-      c.sensor.camera.distortion = DistortionModel::kPlumbBob;
-      c.sensor.camera.D = D;
-    }
-    c.rock_subsample = get_int("rock_subsample", c.rock_subsample);
-    c.clutter.green_specks = get_int("clutter_specks", 0);
-    c.clutter.olive_minerals = get_int("clutter_olive", 0);
-    c.clutter.green_blobs = get_int("clutter_blobs", 0);
     duration_s_ = pnh.param("duration", 0.0);
 
     // A calibration file for the simulated camera replaces its intrinsics

@@ -120,17 +120,25 @@ class CameraDriverSources(unittest.TestCase):
             "info_wrong_size": ["_source:=images", "_image_dir:=" + cls.image_dir, "_rate:=10",
                                 "_camera_info_url:=file://" + cls.calib_1024],
             "device_missing": ["_source:=device", "_device:=/dev/sls_no_such_camera"],
+            # Simulator parameters of the wrong type: named, defaults kept, the simulator runs.
+            "sim_bad_params": ["_source:=sim", "_rate:=5", "_rock_distance:=far", "_projector_rows:=2.5",
+                               "_shot_noise:=3"],
         }
         cls.recorders = {name: Recorder("/" + name) for name in cases}
         time.sleep(0.5)
         cls.procs = []
+        cls.stderr = {}
         for name, args in cases.items():
             cmd = [exe, "__name:=driver", "__ns:=/" + name] + args
-            cls.procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            # stderr kept: start-up errors can go out before /rosout is connected.
+            cls.stderr[name] = os.path.join(t, name + ".stderr")
+            with open(cls.stderr[name], "w") as err:
+                cls.procs.append(subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err))
         # Wait until the good cases have streamed for COLLECT_S seconds.
         deadline = time.time() + 40.0
         while time.time() < deadline:
-            if all(len(cls.recorders[n].images) > 0 for n in ("video_ok", "images_ok", "images_unreadable")):
+            if all(len(cls.recorders[n].images) > 0
+                   for n in ("video_ok", "images_ok", "images_unreadable", "sim_bad_params")):
                 break
             time.sleep(0.2)
         time.sleep(COLLECT_S)
@@ -237,6 +245,15 @@ class CameraDriverSources(unittest.TestCase):
         _, infos = self.check_stream("info_wrong_size", 640, 480, 10.0)
         self.assertEqual(infos[0].K[0], 0.0)
         self.assert_alive("info_wrong_size")
+
+    def test_simulator_parameters_of_the_wrong_type_are_named(self):
+        with open(self.stderr["sim_bad_params"]) as f:
+            err = f.read()
+        for expected in ("~rock_distance must be a number", "~projector_rows must be a non-negative integer",
+                         "~shot_noise must be true or false"):
+            self.assertIn(expected, err)
+        self.check_stream("sim_bad_params", 1024, 1024, 5.0)
+        self.assert_alive("sim_bad_params")
 
     def test_missing_device_is_reported(self):
         errs = self.errors_of("device_missing")
