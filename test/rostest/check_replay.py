@@ -45,14 +45,30 @@ def start(args, log):
     return subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
 
 
+def group_alive(pgid):
+    try:
+        os.killpg(pgid, 0)
+        return True
+    except ProcessLookupError:
+        return False
+
+
 def stop(proc, timeout=20.0):
+    """SIGINT to the process group, then wait until every process of the
+    group has exited. Waiting for `proc` alone is not enough: the `rosbag
+    record` wrapper exits on SIGINT at once, while its `record` child is still
+    closing the bag (until then the file is <name>.active)."""
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        proc.poll()  # reap the leader: a zombie still counts as a member of the group
+        if not group_alive(proc.pid):
+            break
+        time.sleep(0.1)
+    if group_alive(proc.pid):
+        os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
 
 
 def read_outputs(path):
