@@ -117,15 +117,12 @@ TEST(SpotDetectorSim, AccuracyAgainstTruth)
   EXPECT_LE(fast_all.rms(), 0.10);
   EXPECT_GE(fast_all.recall(), 0.995);
   EXPECT_LT(fast_all.rms(), base_all.rms());
-  // The simulator's green specks (1-3 px, the projector's colour, not blurred
-  // by the optics) are as large as sigma-1.5 dots: nothing in one frame
-  // tells them apart, so the false-spot bound is asserted for dots of sigma
-  // 2-4 px and the sigma-1.5 frames are only held to a loose bound. The
-  // issue asks for <= 0.1 per frame; with 20 specks and 20 olive minerals in
-  // view this measures 0.17 (2 in 12 frames: mineral patches next to dots),
-  // so the bound here is what is met, not what was asked.
-  EXPECT_LE(fast_wide.falsePerFrame(), 0.25);
-  EXPECT_LE(fast_all.falsePerFrame(), 3.0);
+  // With 20 green specks and 20 olive minerals in view. Specks (sigma
+  // 0.6-1.4 px) are as small as sigma-1.5 dots and, on the darkest rock, as
+  // green: what tells them apart is the frame-level test of size and energy
+  // (a speck is off in both; see SpotDetectorParams).
+  EXPECT_LE(fast_all.falsePerFrame(), 0.1);
+  EXPECT_LE(fast_wide.falsePerFrame(), 0.1);
 }
 
 // Same projector power spread over a wider beam: below the study's worst SNR.
