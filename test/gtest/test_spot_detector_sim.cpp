@@ -125,6 +125,33 @@ TEST(SpotDetectorSim, AccuracyAgainstTruth)
   EXPECT_LE(fast_wide.falsePerFrame(), 0.1);
 }
 
+// The false-spot bound over more frames than the test above (16 frames can
+// only show 0, 1, 2... false spots): sunlit frames only, since clutter is
+// sunlit reflectance and vanishes at night, with seeds not used to set the
+// detector's thresholds. Fast method only.
+TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
+{
+  SpotDetector fast;
+  Score s;
+  uint32_t seed = 50000;
+  for (int rep = 0; rep < 3; ++rep)
+    for (double beam : {0.0014, 0.002, 0.0028, 0.0038})
+      for (int c = 0; c < 3; ++c)  // the sunlit conditions
+      {
+        const Simulator sim(config(beam, kConditions[c], true, ++seed));
+        const SimFrame f = sim.render(0.3 * (seed % 100));
+        s.add(score(fast.detect(f.image, PixelFormat::kBgr8).spots, f));
+      }
+  print("36 sunlit frames, sigma 1.5-4 px, fresh seeds: fast", s);
+  EXPECT_LE(s.falsePerFrame(), 0.1);
+  // Sunlit frames only are the hard half of the set: this measures
+  // 99.28 % (the detector before the frame-level size/energy test: 99.47 %;
+  // 14 of the 26 dots missed never become candidates). The 99.5 %
+  // is asserted above, over sunlit and night frames.
+  EXPECT_GE(s.recall(), 0.99);
+  EXPECT_LE(s.rms(), 0.10);
+}
+
 // Same projector power spread over a wider beam: below the study's worst SNR.
 // Reported; bounded loosely (the centroid noise bound itself is ~0.1 px here).
 TEST(SpotDetectorSim, WideDimDotsBelowTheStudysWorstSnr)
