@@ -1204,12 +1204,13 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
       const Refined& r = kept[i];
       const bool shape_known = !(skip_clipped && r.clipped);
       const double sr = r.sigma / sig_med, er = energy(r) / ene_med;
-      const bool off_size = (p.size_band_low > 0 && sr < p.size_band_low) || (p.size_band_high > 0 && sr > p.size_band_high);
+      const bool off_size =
+          (p.size_band_low > 0 && sr < p.size_band_low) || (p.size_band_high > 0 && sr > p.size_band_high);
       const bool off_energy =
           (p.energy_band_low > 0 && er < p.energy_band_low) || (p.energy_band_high > 0 && er > p.energy_band_high);
       std::string why;
-      if (shape_known &&
-          ((p.min_sigma_fraction > 0 && sr < p.min_sigma_fraction) || (p.max_sigma_factor > 0 && sr > p.max_sigma_factor)))
+      if (shape_known && ((p.min_sigma_fraction > 0 && sr < p.min_sigma_fraction) ||
+                          (p.max_sigma_factor > 0 && sr > p.max_sigma_factor)))
         why = "sigma " + std::to_string(r.sigma) + " px far from the frame's median " + std::to_string(sig_med);
       else if (p.max_contrast_factor > 0 && contrast(r) > p.max_contrast_factor * con_med)
         why = "contrast " + std::to_string(contrast(r)) + " above " + std::to_string(p.max_contrast_factor) +
