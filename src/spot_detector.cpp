@@ -174,6 +174,15 @@ std::vector<std::string> SpotDetectorParams::sanitize()
   if (max_sigma_factor > 0 && max_sigma_factor < 1.0)
     clampDouble(&max_sigma_factor, 1.0, 1000.0, "max_sigma_factor", &changes);
   clampDouble(&max_contrast_factor, 0.0, 1000.0, "max_contrast_factor", &changes);
+  clampDouble(&min_energy_fraction, 0.0, 1.0, "min_energy_fraction", &changes);
+  clampDouble(&size_band_low, 0.0, 1.0, "size_band_low", &changes);
+  clampDouble(&size_band_high, 0.0, 1000.0, "size_band_high", &changes);
+  if (size_band_high > 0 && size_band_high < 1.0)
+    clampDouble(&size_band_high, 1.0, 1000.0, "size_band_high", &changes);
+  clampDouble(&energy_band_low, 0.0, 1.0, "energy_band_low", &changes);
+  clampDouble(&energy_band_high, 0.0, 1000.0, "energy_band_high", &changes);
+  if (energy_band_high > 0 && energy_band_high < 1.0)
+    clampDouble(&energy_band_high, 1.0, 1000.0, "energy_band_high", &changes);
   clampInt(&consistency_min_spots, 1, 100000, "consistency_min_spots", &changes);
   return changes;
 }
@@ -467,6 +476,7 @@ struct Refined
   double red_slack = 0;                  // how far texture alone could move the red ratio
   double background = 0;                 // local background level of the weight channel (DN)
   bool on_pedestal = false;              // found by the small-window retry
+  bool clipped = false;                  // green core saturated: sigma inflated, flux short
   cv::Rect window;
 };
 
@@ -1094,6 +1104,9 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
                           static_cast<int>(std::lround(r.x)) * L.step;
     const bool clipped = core[L.r] >= p.saturation_level || core[L.g] >= p.saturation_level ||
                          core[L.b] >= p.saturation_level;
+    // The fit's weight channel clipped (red alone clips on bright sunlit rock
+    // and leaves the dot's shape intact).
+    r.clipped = core[L.g] >= p.saturation_level;
     if (!mono && !clipped)
     {
       chroma(image, L, p.saturation_level, p.led_red_ratio, p.led_blue_ratio, &r);
@@ -1149,47 +1162,67 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
         drop[order[j]] = 1;
     }
   }
-  // Frame-level consistency: the dots of one frame share the projector's
-  // power and optics, so they share a size and a contrast over the rock they
-  // light (both vary with depth and slope, but far less than between a dot
-  // and a speck, or a sunlit green mineral). Outliers from the frame's median
-  // are clutter. Amplitude of a Gaussian from its self-weighted sum:
-  // sum = A pi sigma^2.
+  // Frame-level consistency (see the params): outliers from the frame's
+  // median size and energy are clutter. Amplitude of a Gaussian from its
+  // self-weighted sum: sum = A pi sigma^2.
   std::vector<size_t> alive;
   for (size_t i = 0; i < kept.size(); ++i)
     if (!drop[i])
       alive.push_back(i);
   if (static_cast<int>(alive.size()) >= std::max(1, p.consistency_min_spots))
   {
-    std::vector<double> sig, con;
+    // The +4 DN keeps both finite at night (no background) without letting
+    // noise in the background decide.
     auto contrast = [](const Refined& r) {
       const double amp = r.flux / (M_PI * r.sigma * r.sigma);
       return amp / (std::max(0.0, r.background) + 4.0);
     };
+    auto energy = [](const Refined& r) { return r.flux / (std::max(0.0, r.background) + 4.0); };
+    // A clipped core widens the fitted sigma and shortens the flux: the
+    // medians come from unclipped spots when there are enough of them, and
+    // clipped spots skip the size and energy tests.
+    int unclipped = 0;
+    for (size_t i : alive)
+      unclipped += kept[i].clipped ? 0 : 1;
+    const bool skip_clipped = unclipped >= 3;
+    std::vector<double> sig, con, ene;
     for (size_t i : alive)
     {
+      if (skip_clipped && kept[i].clipped)
+        continue;
       sig.push_back(kept[i].sigma);
       con.push_back(contrast(kept[i]));
+      ene.push_back(energy(kept[i]));
     }
-    std::nth_element(sig.begin(), sig.begin() + sig.size() / 2, sig.end());
-    std::nth_element(con.begin(), con.begin() + con.size() / 2, con.end());
-    const double sig_med = sig[sig.size() / 2], con_med = con[con.size() / 2];
+    auto median = [](std::vector<double>& v) {
+      std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+      return v[v.size() / 2];
+    };
+    const double sig_med = median(sig), con_med = median(con), ene_med = std::max(1e-9, median(ene));
     for (size_t i : alive)
     {
       const Refined& r = kept[i];
-      if ((p.min_sigma_fraction > 0 && r.sigma < p.min_sigma_fraction * sig_med) ||
-          (p.max_sigma_factor > 0 && r.sigma > p.max_sigma_factor * sig_med))
-      {
-        drop[i] = 1;
-        reject(r.x, r.y, "sigma " + std::to_string(r.sigma) + " px far from the frame's median " +
-                             std::to_string(sig_med));
-      }
+      const bool shape_known = !(skip_clipped && r.clipped);
+      const double sr = r.sigma / sig_med, er = energy(r) / ene_med;
+      const bool off_size =
+          (p.size_band_low > 0 && sr < p.size_band_low) || (p.size_band_high > 0 && sr > p.size_band_high);
+      const bool off_energy =
+          (p.energy_band_low > 0 && er < p.energy_band_low) || (p.energy_band_high > 0 && er > p.energy_band_high);
+      std::string why;
+      if (shape_known && ((p.min_sigma_fraction > 0 && sr < p.min_sigma_fraction) ||
+                          (p.max_sigma_factor > 0 && sr > p.max_sigma_factor)))
+        why = "sigma " + std::to_string(r.sigma) + " px far from the frame's median " + std::to_string(sig_med);
       else if (p.max_contrast_factor > 0 && contrast(r) > p.max_contrast_factor * con_med)
+        why = "contrast " + std::to_string(contrast(r)) + " above " + std::to_string(p.max_contrast_factor) +
+              " x the frame's median " + std::to_string(con_med);
+      else if (shape_known && p.min_energy_fraction > 0 && er < p.min_energy_fraction)
+        why = "energy " + std::to_string(er) + " x the frame's median: not lit by the projector";
+      else if (shape_known && off_size && off_energy)
+        why = "both size (" + std::to_string(sr) + ") and energy (" + std::to_string(er) + ") off the frame's medians";
+      if (!why.empty())
       {
         drop[i] = 1;
-        reject(r.x, r.y, "contrast " + std::to_string(contrast(r)) + " above " +
-                             std::to_string(p.max_contrast_factor) + " x the frame's median " +
-                             std::to_string(con_med));
+        reject(r.x, r.y, why);
       }
     }
   }

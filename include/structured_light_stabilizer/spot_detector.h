@@ -115,17 +115,31 @@ struct SpotDetectorParams
   double max_red_excess = 0.4;
   double max_red_deficit = 0.0;
   double max_chroma_error = 0.15;
-  int saturation_level = 250;
-  // Frame-level consistency (when at least consistency_min_spots survive):
-  // reject spots smaller than min_sigma_fraction or larger than
-  // max_sigma_factor x the frame's median sigma (specks, mineral patches), or
-  // whose contrast (peak over local background) exceeds max_contrast_factor x
-  // the frame's median (sunlit green minerals are far brighter than the rock
-  // around them than a dot is). 0 disables each.
-  double min_sigma_fraction = 0.7;
+  int saturation_level = 250;  // DN; pixels at or above are clipped (excluded from the chroma test)
+  // Frame-level consistency (when at least consistency_min_spots survive).
+  // The dots of one frame share the projector's beam and power, so they
+  // share a size (sigma) and an energy relative to the rock they light
+  // (flux over the local background level: the projector/sun irradiance
+  // ratio, up to incidence and shading); a speck or a mineral is a
+  // reflectance patch, whose size and energy follow its own area and
+  // reflectance. Hard bounds, relative to the frame's medians: sigma below
+  // min_sigma_fraction or above max_sigma_factor (specks, mineral patches),
+  // peak contrast over the background above max_contrast_factor (sunlit green
+  // minerals), energy below min_energy_fraction (a patch the projector does
+  // not light). Joint bound: a spot whose sigma is outside
+  // [size_band_low, size_band_high] AND whose energy is outside
+  // [energy_band_low, energy_band_high] x the medians is clutter (a dot on a
+  // slope may be larger or dimmer than its peers, rarely both; a speck is
+  // smaller and brighter or dimmer). 0 disables each bound.
+  double min_sigma_fraction = 0.9;
   double max_sigma_factor = 1.6;
   double max_contrast_factor = 4.0;
-  int consistency_min_spots = 8;  // DN; pixels at or above are clipped (excluded from the chroma test)
+  double min_energy_fraction = 0.15;
+  double size_band_low = 0.92;
+  double size_band_high = 1.15;
+  double energy_band_low = 0.6;
+  double energy_band_high = 1.6;
+  int consistency_min_spots = 8;
 
   // Empty when usable, otherwise the first problem found.
   std::string validate() const;

@@ -152,6 +152,11 @@ private:
     p.min_sigma_fraction = config.min_sigma_fraction;
     p.max_sigma_factor = config.max_sigma_factor;
     p.max_contrast_factor = config.max_contrast_factor;
+    p.min_energy_fraction = config.min_energy_fraction;
+    p.size_band_low = config.size_band_low;
+    p.size_band_high = config.size_band_high;
+    p.energy_band_low = config.energy_band_low;
+    p.energy_band_high = config.energy_band_high;
     p.consistency_min_spots = config.consistency_min_spots;
     for (const std::string& change : p.sanitize())
       NODELET_WARN("SpotDetector: %s", change.c_str());
@@ -167,6 +172,9 @@ private:
     config.max_area = p.max_area;
     config.min_sigma_px = p.min_sigma_px;
     config.max_sigma_px = p.max_sigma_px;
+    config.max_sigma_factor = p.max_sigma_factor;
+    config.size_band_high = p.size_band_high;
+    config.energy_band_high = p.energy_band_high;
     params_ = p;
     enabled_ = config.enabled;
     params_changed_ = true;

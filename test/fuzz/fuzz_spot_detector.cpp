@@ -74,6 +74,9 @@ SpotDetectorParams variant(uint8_t flags, const uint8_t* p)
       params.min_sigma_fraction = 0.0;
       params.max_sigma_factor = 0.0;
       params.max_contrast_factor = 0.0;
+      params.min_energy_fraction = 0.0;
+      params.size_band_low = params.size_band_high = 0.0;
+      params.energy_band_low = params.energy_band_high = 0.0;
       params.max_chroma_error = (p[0] % 100) * 0.1;
       params.red_weight = (p[1] % 11) * 0.1;
       params.saturation_level = 1 + p[2] % 255;

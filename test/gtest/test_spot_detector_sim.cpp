@@ -117,15 +117,39 @@ TEST(SpotDetectorSim, AccuracyAgainstTruth)
   EXPECT_LE(fast_all.rms(), 0.10);
   EXPECT_GE(fast_all.recall(), 0.995);
   EXPECT_LT(fast_all.rms(), base_all.rms());
-  // The simulator's green specks (1-3 px, the projector's colour, not blurred
-  // by the optics) are as large as sigma-1.5 dots: nothing in one frame
-  // tells them apart, so the false-spot bound is asserted for dots of sigma
-  // 2-4 px and the sigma-1.5 frames are only held to a loose bound. The
-  // issue asks for <= 0.1 per frame; with 20 specks and 20 olive minerals in
-  // view this measures 0.17 (2 in 12 frames: mineral patches next to dots),
-  // so the bound here is what is met, not what was asked.
-  EXPECT_LE(fast_wide.falsePerFrame(), 0.25);
-  EXPECT_LE(fast_all.falsePerFrame(), 3.0);
+  // With 20 green specks and 20 olive minerals in view. Specks (sigma
+  // 0.6-1.4 px) are as small as sigma-1.5 dots and, on the darkest rock, as
+  // green: what tells them apart is the frame-level test of size and energy
+  // (a speck is off in both; see SpotDetectorParams).
+  EXPECT_LE(fast_all.falsePerFrame(), 0.1);
+  EXPECT_LE(fast_wide.falsePerFrame(), 0.1);
+}
+
+// The false-spot bound over more frames than the test above (16 frames can
+// only show 0, 1, 2... false spots): sunlit frames only, since clutter is
+// sunlit reflectance and vanishes at night, with seeds not used to set the
+// detector's thresholds. Fast method only.
+TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
+{
+  SpotDetector fast;
+  Score s;
+  uint32_t seed = 50000;
+  for (int rep = 0; rep < 3; ++rep)
+    for (double beam : {0.0014, 0.002, 0.0028, 0.0038})
+      for (int c = 0; c < 3; ++c)  // the sunlit conditions
+      {
+        const Simulator sim(config(beam, kConditions[c], true, ++seed));
+        const SimFrame f = sim.render(0.3 * (seed % 100));
+        s.add(score(fast.detect(f.image, PixelFormat::kBgr8).spots, f));
+      }
+  print("36 sunlit frames, sigma 1.5-4 px, fresh seeds: fast", s);
+  EXPECT_LE(s.falsePerFrame(), 0.1);
+  // Sunlit frames only are the hard half of the issue's set: this measures
+  // 99.28 % (the detector before the frame-level size/energy test: 99.47 %;
+  // 14 of the 26 dots missed never become candidates). The issue's 99.5 %
+  // is asserted above, over sunlit and night frames.
+  EXPECT_GE(s.recall(), 0.99);
+  EXPECT_LE(s.rms(), 0.10);
 }
 
 // Same projector power spread over a wider beam: below the study's worst SNR.
