@@ -289,6 +289,17 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
   const double tol = config_.prediction_tolerance_px;
   const int rows = projector_.rows, cols = projector_.cols;
   std::vector<int> reject;
+  // Neighbours at whose depth beam i would be within tol of spot j.
+  const auto agreeing = [&](int i, int j, const std::vector<Eigen::Vector3d>& support) {
+    const BeamRay& b = projector_.beams[i];
+    int agree = 0;
+    for (const Eigen::Vector3d& q : support)
+    {
+      const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
+      agree += (at_q - spots_px[j]).norm() <= tol;
+    }
+    return agree;
+  };
   for (int i = 0; i < projector_.beamCount(); ++i)
   {
     const int j = (*spot_of_beam)[i];
@@ -316,21 +327,18 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
       const bool have_plane = supportOf(i, *spot_of_beam, *accepted_point, &wide) >= 1 && wide.size() >= 3 &&
                               predictPixel(i, wide, &px);
       const bool confirmed = have_plane && (px - spots_px[j]).norm() <= tol;
-      if ((have_plane && !confirmed) || (contested[i] && !confirmed))
+      // Two neighbours that both disagree: a spot at a depth of its own
+      // (a one-dot object) is indistinguishable from a spurious spot on the
+      // segment of a missing dot, and the latter is the likelier.
+      const bool isolated = support.size() >= 2 && agreeing(i, j, support) == 0;
+      if ((have_plane && !confirmed) || (contested[i] && !confirmed) || isolated)
         reject.push_back(i);
       continue;
     }
     Eigen::Vector2d px;
     if (predictPixel(i, support, &px) && (px - spots_px[j]).norm() <= tol)
       continue;
-    const BeamRay& b = projector_.beams[i];
-    int agree = 0;
-    for (const Eigen::Vector3d& q : support)
-    {
-      const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
-      agree += (at_q - spots_px[j]).norm() <= tol;
-    }
-    if (agree < 2)
+    if (agreeing(i, j, support) < 2)
       reject.push_back(i);
   }
   for (int i : reject)
@@ -339,6 +347,465 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
     (*spot_of_beam)[i] = -1;
     (*accepted_point)[i] = Eigen::Vector3d::Constant(kNaN);
   }
+}
+
+bool Triangulator::triangulatePixel(int beam, const Eigen::Vector2d& px, Eigen::Vector3d* p) const
+{
+  const Eigen::Vector3d ray((px.x() - camera_.cx) / camera_.fx, (px.y() - camera_.cy) / camera_.fy, 1.0);
+  double gap = 0.0;
+  return triangulateBeam(ray, projector_.beams[beam], p, &gap);
+}
+
+double Triangulator::smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const
+{
+  const BeamRay& b = projector_.beams[beam];
+  const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
+  const double e = (at_q - px).norm() / (2.0 * config_.prediction_tolerance_px);
+  return std::isfinite(e) ? std::min(1.0, e * e) : 1.0;
+}
+
+int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
+                               const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
+                               std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
+                               std::vector<char>* contested) const
+{
+  if (config_.prediction_tolerance_px <= 0.0)
+    return 0;
+  const int rows = projector_.rows, cols = projector_.cols;
+  const double gate2 = config_.max_epipolar_distance_px * config_.max_epipolar_distance_px;
+  const double inf = std::numeric_limits<double>::infinity();
+  // Readings up to this much above a line's best are kept as hypotheses: a
+  // reading shifted by one column costs the best + 0 or + 2 (a missing end
+  // dot, a spurious one); the neighbouring lines have to decide.
+  const double window = 3.0;
+  constexpr int kRounds = 2;  // a third round added nothing in 500 test frames
+
+  struct Pair
+  {
+    int k, l;              // local beam (along the line) and local spot (along the image line)
+    double data;           // epipolar cost + smoothness to accepted grid neighbours
+    Eigen::Vector3d point;
+  };
+  struct Node
+  {
+    int orient = 0;  // 0: a grid row, 1: a grid column
+    int line = 0;    // its row (column) index
+    std::vector<int> beams, spots;         // open ones, in order along the line
+    std::vector<Pair> pairs;               // in (k, l) order
+    std::vector<int> pair_of;              // k * spots + l -> pair, -1 = not a candidate
+    std::vector<double> S;                 // smoothness of consecutive matches, pairs x pairs
+    std::vector<std::vector<int>> reading; // per hypothesis: local spot per local beam, -1 = none
+    std::vector<double> unary;             // its cost within the line
+    std::vector<std::vector<int>> reading_pair;  // the same as pair indices
+    std::vector<int> k_of_pos;             // local beam at each position along the line, -1 = none
+    std::vector<double> last_extra;        // the neighbours' costs of the last generation
+    std::vector<double> marginal;          // min-marginal over the chain
+    int map = 0;                           // hypothesis of the chain's optimum
+  };
+  const auto posOf = [&](int orient, int beam) { return orient == 0 ? beam % cols : beam / cols; };
+
+  // One node per grid line: the open beams and spots of its components.
+  std::vector<Node> nodes;
+  for (const auto& comp : lines)
+  {
+    const std::vector<int>& cb = comp.first;
+    bool same_row = true, same_col = true;
+    for (int i : cb)
+    {
+      same_row &= i / cols == cb[0] / cols;
+      same_col &= i % cols == cb[0] % cols;
+    }
+    if (!same_row && !same_col)
+      continue;
+    const int orient = same_row ? 0 : 1;
+    const int line = same_row ? cb[0] / cols : cb[0] % cols;
+    auto it = std::find_if(nodes.begin(), nodes.end(),
+                           [&](const Node& nd) { return nd.orient == orient && nd.line == line; });
+    if (it == nodes.end())
+    {
+      nodes.emplace_back();
+      it = nodes.end() - 1;
+      it->orient = orient;
+      it->line = line;
+    }
+    for (int i : cb)
+      if ((*spot_of_beam)[i] < 0)
+        it->beams.push_back(i);
+    for (int j : comp.second)
+      if ((*beam_of_spot)[j] < 0)
+        it->spots.push_back(j);
+  }
+  const auto neighbours = [&](int i, int out[4]) {
+    const int r = i / cols, c = i % cols;
+    out[0] = r > 0 ? i - cols : -1;
+    out[1] = r + 1 < rows ? i + cols : -1;
+    out[2] = c > 0 ? i - 1 : -1;
+    out[3] = c + 1 < cols ? i + 1 : -1;
+  };
+
+  // Candidate pairs of every node.
+  for (Node& nd : nodes)
+  {
+    std::sort(nd.beams.begin(), nd.beams.end(),
+              [&](int x, int y) { return posOf(nd.orient, x) < posOf(nd.orient, y); });
+    const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
+    if (m == 0 || q == 0)
+      continue;
+    // Image direction of increasing position along the line: on a surface
+    // without overhangs the dots keep the beams' order along it.
+    const auto mid = [&](int i) { return 0.5 * (segments_[i].near_px + segments_[i].far_px); };
+    const Eigen::Vector2d dir = m >= 2 ? Eigen::Vector2d(mid(nd.beams.back()) - mid(nd.beams.front()))
+                                       : Eigen::Vector2d(segments_[nd.beams[0]].far_px - segments_[nd.beams[0]].near_px);
+    if (!(dir.norm() > 1e-9))
+      continue;
+    std::sort(nd.spots.begin(), nd.spots.end(),
+              [&](int x, int y) { return spots_px[x].dot(dir) < spots_px[y].dot(dir); });
+    nd.k_of_pos.assign(nd.orient == 0 ? cols : rows, -1);
+    for (int k = 0; k < m; ++k)
+      nd.k_of_pos[posOf(nd.orient, nd.beams[k])] = k;
+    nd.pair_of.assign(static_cast<size_t>(m) * q, -1);
+    for (int k = 0; k < m; ++k)
+    {
+      const int i = nd.beams[k];
+      for (int l = 0; l < q; ++l)
+      {
+        const Eigen::Vector2d& px = spots_px[nd.spots[l]];
+        const double d2 = segmentDistance2(px, segments_[i].near_px, segments_[i].far_px);
+        Eigen::Vector3d pt;
+        if (!(d2 <= gate2) || !triangulatePixel(i, px, &pt))
+          continue;
+        double data = d2 / gate2;
+        int nb[4];
+        neighbours(i, nb);
+        for (int n2 : nb)
+          if (n2 >= 0 && (*spot_of_beam)[n2] >= 0)
+            data += smoothnessCost(i, px, (*accepted_point)[n2]);
+        nd.pair_of[k * q + l] = static_cast<int>(nd.pairs.size());
+        nd.pairs.push_back({k, l, data, pt});
+      }
+    }
+    const int np = static_cast<int>(nd.pairs.size());
+    nd.S.assign(static_cast<size_t>(np) * np, 0.0);
+    for (int a2 = 0; a2 < np; ++a2)
+      for (int b2 = 0; b2 < np; ++b2)
+      {
+        const Pair& pa = nd.pairs[a2];
+        const Pair& pb = nd.pairs[b2];
+        if (pb.k > pa.k && pb.l > pa.l && posOf(nd.orient, nd.beams[pb.k]) == posOf(nd.orient, nd.beams[pa.k]) + 1)
+          nd.S[a2 * np + b2] = smoothnessCost(nd.beams[pb.k], spots_px[nd.spots[pb.l]], pa.point);
+      }
+  }
+
+  // Cost of a reading within its line: data, a beam without a spot or a
+  // spot without a beam 1 each, smoothness between neighbouring matches.
+  const auto readingCost = [&](const Node& nd, const std::vector<int>& rd) {
+    const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
+    const int np = static_cast<int>(nd.pairs.size());
+    double u = 0.0;
+    int matched = 0, prev = -1;
+    for (int k = 0; k < m; ++k)
+    {
+      if (rd[k] < 0)
+        continue;
+      const int p2 = nd.pair_of[k * q + rd[k]];
+      u += nd.pairs[p2].data;
+      if (prev >= 0)
+        u += nd.S[prev * np + p2];
+      prev = p2;
+      ++matched;
+    }
+    return u + (m - matched) + (q - matched);
+  };
+
+  // Adds to a node the readings that are best under the cost data + extra
+  // (per pair): the best one, the best through every pair within the
+  // window, and the best without each pair of the best one. This is an
+  // order-preserving matching with smoothness between consecutive matches,
+  // by dynamic programming over the pairs (F: best reading ending with a
+  // pair, B: best reading starting with it). Returns how many were new.
+  const auto generate = [&](Node& nd, const std::vector<double>& extra) {
+    const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
+    const int np = static_cast<int>(nd.pairs.size());
+    const auto cost = [&](int p2) { return nd.pairs[p2].data + extra[p2]; };
+    const auto forward = [&](int forbid, std::vector<double>* F, std::vector<int>* pred) {
+      F->assign(np, inf);
+      pred->assign(np, -1);
+      for (int p2 = 0; p2 < np; ++p2)
+      {
+        if (p2 == forbid)
+          continue;
+        const Pair& pb = nd.pairs[p2];
+        double best_in = pb.k + pb.l;
+        int from = -1;
+        for (int p1 = 0; p1 < p2; ++p1)
+        {
+          const Pair& pa = nd.pairs[p1];
+          if (p1 == forbid || !(pa.k < pb.k && pa.l < pb.l))
+            continue;
+          const double v = (*F)[p1] + (pb.k - pa.k - 1) + (pb.l - pa.l - 1) + nd.S[p1 * np + p2];
+          if (v < best_in)
+          {
+            best_in = v;
+            from = p1;
+          }
+        }
+        (*F)[p2] = cost(p2) + best_in;
+        (*pred)[p2] = from;
+      }
+    };
+    const auto bestEnd = [&](const std::vector<double>& F, double* total) {
+      *total = m + q;
+      int end = -1;
+      for (int p2 = 0; p2 < np; ++p2)
+      {
+        const double v = F[p2] + (m - 1 - nd.pairs[p2].k) + (q - 1 - nd.pairs[p2].l);
+        if (v < *total)
+        {
+          *total = v;
+          end = p2;
+        }
+      }
+      return end;
+    };
+    std::vector<double> B(np, inf);
+    std::vector<int> succ(np, -1);
+    for (int p2 = np - 1; p2 >= 0; --p2)
+    {
+      const Pair& pa = nd.pairs[p2];
+      double best_out = (m - 1 - pa.k) + (q - 1 - pa.l);
+      for (int p3 = p2 + 1; p3 < np; ++p3)
+      {
+        const Pair& pb = nd.pairs[p3];
+        if (!(pb.k > pa.k && pb.l > pa.l))
+          continue;
+        const double v = B[p3] + (pb.k - pa.k - 1) + (pb.l - pa.l - 1) + nd.S[p2 * np + p3];
+        if (v < best_out)
+        {
+          best_out = v;
+          succ[p2] = p3;
+        }
+      }
+      B[p2] = cost(p2) + best_out;
+    }
+    std::vector<std::vector<int>> found;
+    const auto trace = [&](const std::vector<int>& pred, int p2, bool forward_too) {
+      std::vector<int> rd(m, -1);
+      for (int p1 = p2; p1 >= 0; p1 = pred[p1])
+        rd[nd.pairs[p1].k] = nd.pairs[p1].l;
+      if (forward_too && p2 >= 0)
+        for (int p3 = succ[p2]; p3 >= 0; p3 = succ[p3])
+          rd[nd.pairs[p3].k] = nd.pairs[p3].l;
+      found.push_back(rd);
+    };
+    std::vector<double> F;
+    std::vector<int> pred;
+    forward(-1, &F, &pred);
+    double best = 0.0;
+    const int end = bestEnd(F, &best);
+    trace(pred, end, false);
+    std::vector<int> best_pairs;
+    for (int p2 = end; p2 >= 0; p2 = pred[p2])
+      best_pairs.push_back(p2);
+    for (int p2 = 0; p2 < np; ++p2)
+      if (F[p2] + B[p2] - cost(p2) <= best + window)
+        trace(pred, p2, true);
+    std::vector<double> Fx;
+    std::vector<int> predx;
+    for (int p2 : best_pairs)
+    {
+      forward(p2, &Fx, &predx);
+      double total = 0.0;
+      trace(predx, bestEnd(Fx, &total), false);
+    }
+    int added = 0;
+    for (const std::vector<int>& rd : found)
+    {
+      if (std::find(nd.reading.begin(), nd.reading.end(), rd) != nd.reading.end())
+        continue;
+      nd.reading.push_back(rd);
+      nd.unary.push_back(readingCost(nd, rd));
+      std::vector<int> rp(m, -1);
+      for (int k = 0; k < m; ++k)
+        if (rd[k] >= 0)
+          rp[k] = nd.pair_of[k * q + rd[k]];
+      nd.reading_pair.push_back(rp);
+      ++added;
+    }
+    return added;
+  };
+
+  // Lines with readings, chained in order; consecutive lines of the same
+  // orientation are grid neighbours.
+  std::vector<int> order;
+  for (int n = 0; n < static_cast<int>(nodes.size()); ++n)
+    if (!nodes[n].pairs.empty())
+      order.push_back(n);
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    return nodes[a].orient != nodes[b].orient ? nodes[a].orient < nodes[b].orient : nodes[a].line < nodes[b].line;
+  });
+  const int count = static_cast<int>(order.size());
+  if (count == 0)
+    return 0;
+  // Smoothness between the readings h of line a and g of the next line b:
+  // a sum over positions of a cost between two pairs, cached per pair of
+  // pairs; the reading-by-reading tables are extended as readings are added.
+  std::vector<std::vector<double>> pair_cost(count);
+  std::vector<std::vector<std::vector<double>>> P(count);  // P[t][h][g]: order[t] with order[t + 1]
+  const auto pairwise = [&](int t, int h, int g) {
+    const Node& a = nodes[order[t]];
+    const Node& b = nodes[order[t + 1]];
+    const int npb = static_cast<int>(b.pairs.size());
+    std::vector<double>& cache = pair_cost[t];
+    if (cache.empty())
+      cache.assign(a.pairs.size() * b.pairs.size(), -1.0);
+    double p = 0.0;
+    for (size_t ka = 0; ka < a.beams.size(); ++ka)
+    {
+      const int pa = a.reading_pair[h][ka];
+      if (pa < 0)
+        continue;
+      const int kb = b.k_of_pos[posOf(a.orient, a.beams[ka])];
+      const int pb = kb >= 0 ? b.reading_pair[g][kb] : -1;
+      if (pb < 0)
+        continue;
+      double& v = cache[pa * npb + pb];
+      if (v < 0.0)
+        v = smoothnessCost(b.beams[kb], spots_px[b.spots[b.pairs[pb].l]], a.pairs[pa].point);
+      p += v;
+    }
+    return p;
+  };
+  // Exact min-sum over the chain: forward and backward messages give every
+  // reading's min-marginal (the cost of the best joint reading that uses it).
+  const auto solveChain = [&]() {
+    std::vector<std::vector<double>> fwd(count), bwd(count);
+    for (int t = 0; t < count; ++t)
+    {
+      const Node& a = nodes[order[t]];
+      fwd[t].assign(a.reading.size(), 0.0);
+      bwd[t].assign(a.reading.size(), 0.0);
+      if (t + 1 == count)
+        continue;
+      const Node& b = nodes[order[t + 1]];
+      const bool linked = a.orient == b.orient && b.line == a.line + 1;
+      P[t].resize(a.reading.size());
+      for (size_t h = 0; h < a.reading.size(); ++h)
+        for (size_t g = P[t][h].size(); g < b.reading.size(); ++g)
+          P[t][h].push_back(linked ? pairwise(t, static_cast<int>(h), static_cast<int>(g)) : 0.0);
+    }
+    for (int t = 1; t < count; ++t)
+    {
+      const Node& a = nodes[order[t - 1]];
+      for (size_t g = 0; g < fwd[t].size(); ++g)
+      {
+        double v = inf;
+        for (size_t h = 0; h < a.reading.size(); ++h)
+          v = std::min(v, fwd[t - 1][h] + a.unary[h] + P[t - 1][h][g]);
+        fwd[t][g] = v;
+      }
+    }
+    for (int t = count - 2; t >= 0; --t)
+    {
+      const Node& b = nodes[order[t + 1]];
+      for (size_t h = 0; h < bwd[t].size(); ++h)
+      {
+        double v = inf;
+        for (size_t g = 0; g < b.reading.size(); ++g)
+          v = std::min(v, bwd[t + 1][g] + b.unary[g] + P[t][h][g]);
+        bwd[t][h] = v;
+      }
+    }
+    for (int t = 0; t < count; ++t)
+    {
+      Node& nd = nodes[order[t]];
+      nd.marginal.resize(nd.reading.size());
+      nd.map = 0;
+      for (size_t h = 0; h < nd.reading.size(); ++h)
+      {
+        nd.marginal[h] = nd.unary[h] + fwd[t][h] + bwd[t][h];
+        if (nd.marginal[h] < nd.marginal[nd.map])
+          nd.map = static_cast<int>(h);
+      }
+    }
+  };
+
+  // Round 0: readings from each line alone. Later rounds add the readings
+  // that are best given the neighbouring lines' current optimum: when a
+  // line's own evidence ties (a missing dot lets part of a row shift), the
+  // reading its neighbours agree with may not be among the first ones.
+  for (int t = 0; t < count; ++t)
+  {
+    Node& nd = nodes[order[t]];
+    nd.last_extra.assign(nd.pairs.size(), 0.0);
+    generate(nd, nd.last_extra);
+  }
+  solveChain();
+  std::vector<Eigen::Vector3d> current(projector_.beamCount());
+  for (int round = 1; round < kRounds; ++round)
+  {
+    std::fill(current.begin(), current.end(), Eigen::Vector3d::Constant(kNaN));
+    for (int t = 0; t < count; ++t)
+    {
+      const Node& nd = nodes[order[t]];
+      const int q = static_cast<int>(nd.spots.size());
+      for (size_t k = 0; k < nd.beams.size(); ++k)
+        if (nd.reading[nd.map][k] >= 0)
+          current[nd.beams[k]] = nd.pairs[nd.pair_of[k * q + nd.reading[nd.map][k]]].point;
+    }
+    int added = 0;
+    for (int t = 0; t < count; ++t)
+    {
+      Node& nd = nodes[order[t]];
+      std::vector<double> extra(nd.pairs.size(), 0.0);
+      for (size_t p2 = 0; p2 < nd.pairs.size(); ++p2)
+      {
+        const int i = nd.beams[nd.pairs[p2].k];
+        int nb[4];
+        neighbours(i, nb);
+        for (int n2 : nb)
+          if (n2 >= 0 && posOf(nd.orient, n2) == posOf(nd.orient, i) && current[n2].allFinite())
+            extra[p2] += smoothnessCost(i, spots_px[nd.spots[nd.pairs[p2].l]], current[n2]);
+      }
+      // Unchanged neighbours give the same readings again.
+      if (extra == nd.last_extra)
+        continue;
+      nd.last_extra = extra;
+      added += generate(nd, extra);
+    }
+    if (added == 0)
+      break;
+    solveChain();
+  }
+
+  // A pair stands when every reading of its line without it costs at least
+  // the margin more.
+  int accepted = 0;
+  for (int t = 0; t < count; ++t)
+  {
+    const Node& nd = nodes[order[t]];
+    const int q = static_cast<int>(nd.spots.size());
+    const std::vector<int>& best = nd.reading[nd.map];
+    for (size_t k = 0; k < nd.beams.size(); ++k)
+    {
+      if (best[k] < 0)
+        continue;
+      double alt = inf;
+      for (size_t h = 0; h < nd.reading.size(); ++h)
+        if (nd.reading[h][k] != best[k])
+          alt = std::min(alt, nd.marginal[h]);
+      if (!(alt - nd.marginal[nd.map] >= config_.ambiguity_margin) || !std::isfinite(alt))
+        continue;
+      const int i = nd.beams[k], j = nd.spots[best[k]];
+      (*spot_of_beam)[i] = j;
+      (*beam_of_spot)[j] = i;
+      (*accepted_point)[i] = nd.pairs[nd.pair_of[k * q + best[k]]].point;
+      // Proven with its neighbours' depths: it stands unless the
+      // consistency check finds a surface that contradicts it.
+      (*contested)[i] = 0;
+      ++accepted;
+    }
+  }
+  return accepted;
 }
 
 std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>& spots_px, int* ambiguous_out) const
@@ -383,132 +850,19 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   int ambiguous = 0;
 
   const auto triangulateCandidate = [&](int beam, int spot, Eigen::Vector3d* p) {
-    const Eigen::Vector3d ray((spots_px[spot].x() - camera_.cx) / camera_.fx,
-                              (spots_px[spot].y() - camera_.cy) / camera_.fy, 1.0);
-    double gap = 0.0;
-    return triangulateBeam(ray, projector_.beams[beam], p, &gap);
+    return triangulatePixel(beam, spots_px[spot], p);
   };
 
-  // Beams of one projector row (or column) share one epipolar line when the
-  // rows are parallel to the baseline: any two of their dots can then be
-  // swapped at no cost and the order-free assignment proves nothing. A
-  // smooth surface keeps the dots in beam order, so the ordered reading
-  // (minimum-cost order-preserving matching, by dynamic programming) is
-  // accepted when every pair of it is unique by the margin among ordered
-  // readings and the depths it gives are smooth along the line. A shifted
-  // reading (a missing end dot) ties and is left to the surface prior.
-  const auto acceptOrderedReading = [&](const std::vector<int>& comp_beams, const std::vector<int>& comp_spots,
-                                        const std::vector<double>& cost, int n, int nb, int ns) -> int {
+  const auto onOneGridLine = [&](const std::vector<int>& beams) {
     const int cols = projector_.cols;
-    if (comp_beams.size() < 2 || config_.prediction_tolerance_px <= 0.0)
-      return 0;
     bool same_row = true, same_col = true;
-    for (int i : comp_beams)
+    for (int i : beams)
     {
-      same_row &= i / cols == comp_beams[0] / cols;
-      same_col &= i % cols == comp_beams[0] % cols;
+      same_row &= i / cols == beams[0] / cols;
+      same_col &= i % cols == beams[0] % cols;
     }
-    if (!same_row && !same_col)
-      return 0;
-    // Local indices sorted along the grid line and along the image line.
-    std::vector<int> ka(nb), la(ns);
-    std::iota(ka.begin(), ka.end(), 0);
-    std::iota(la.begin(), la.end(), 0);
-    std::sort(ka.begin(), ka.end(), [&](int x, int y) { return comp_beams[x] < comp_beams[y]; });
-    const auto mid = [&](int a) { return 0.5 * (segments_[comp_beams[a]].near_px + segments_[comp_beams[a]].far_px); };
-    const Eigen::Vector2d dir = mid(ka.back()) - mid(ka.front());
-    if (!(dir.norm() > 1e-6))
-      return 0;
-    std::sort(la.begin(), la.end(),
-              [&](int x, int y) { return spots_px[comp_spots[x]].dot(dir) < spots_px[comp_spots[y]].dot(dir); });
-    const int m = nb, q = ns;
-    // D[k][l]: best cost of the first k beams and first l spots (in order).
-    const auto solve = [&](int forbid_k, int forbid_l, std::vector<int>* match) {
-      std::vector<double> D((m + 1) * (q + 1), 0.0);
-      std::vector<char> how((m + 1) * (q + 1), 0);
-      for (int k = 0; k <= m; ++k)
-      {
-        for (int l = 0; l <= q; ++l)
-        {
-          if (k == 0 && l == 0)
-            continue;
-          double best = std::numeric_limits<double>::infinity();
-          char h = 0;
-          if (k > 0 && D[(k - 1) * (q + 1) + l] + 1.0 < best)
-          {
-            best = D[(k - 1) * (q + 1) + l] + 1.0;
-            h = 1;
-          }
-          if (l > 0 && D[k * (q + 1) + l - 1] + 1.0 < best)
-          {
-            best = D[k * (q + 1) + l - 1] + 1.0;
-            h = 2;
-          }
-          if (k > 0 && l > 0 && !(k - 1 == forbid_k && l - 1 == forbid_l))
-          {
-            const double c = cost[ka[k - 1] * n + la[l - 1]];
-            if (c < kForbidden && D[(k - 1) * (q + 1) + l - 1] + c < best)
-            {
-              best = D[(k - 1) * (q + 1) + l - 1] + c;
-              h = 3;
-            }
-          }
-          D[k * (q + 1) + l] = best;
-          how[k * (q + 1) + l] = h;
-        }
-      }
-      if (match)
-      {
-        match->assign(m, -1);
-        for (int k = m, l = q; k > 0 || l > 0;)
-        {
-          const char h = how[k * (q + 1) + l];
-          if (h == 3)
-            (*match)[k - 1] = l - 1;
-          k -= (h == 1 || h == 3);
-          l -= (h == 2 || h == 3);
-        }
-      }
-      return D[m * (q + 1) + q];
-    };
-    std::vector<int> match;
-    const double best = solve(-1, -1, &match);
-    int prev = -1;
-    Eigen::Vector3d prev_point = Eigen::Vector3d::Zero();
-    std::vector<std::pair<int, Eigen::Vector3d>> reading;
-    for (int k = 0; k < m; ++k)
-    {
-      if (match[k] < 0)
-        continue;
-      if (solve(k, match[k], nullptr) - best < config_.ambiguity_margin)
-        return 0;
-      const int i = comp_beams[ka[k]], j = comp_spots[la[match[k]]];
-      Eigen::Vector3d p;
-      if (!triangulateCandidate(i, j, &p))
-        return 0;
-      if (prev >= 0)
-      {
-        // Where beam i would be at the depth of the previous dot of the line.
-        const BeamRay& b = projector_.beams[i];
-        const Eigen::Vector2d at_prev = projectUndistorted(b.pointAt((prev_point.z() - b.origin.z()) / b.direction.z()));
-        if ((at_prev - spots_px[j]).norm() > 3.0 * config_.prediction_tolerance_px * (k - prev))
-          return 0;
-      }
-      prev = k;
-      prev_point = p;
-      reading.push_back({k, p});
-    }
-    for (const auto& kp : reading)
-    {
-      const int i = comp_beams[ka[kp.first]], j = comp_spots[la[match[kp.first]]];
-      spot_of_beam[i] = j;
-      beam_of_spot[j] = i;
-      accepted_point[i] = kp.second;
-      contested[i] = 0;
-    }
-    return static_cast<int>(reading.size());
+    return beams.size() >= 2 && (same_row || same_col);
   };
-
   const int max_passes = 4 + 2 * (projector_.rows + projector_.cols);
   // Only interpolation between accepted neighbours on opposite sides is
   // used: extrapolating from one side favours whatever reading puts the spot
@@ -585,8 +939,10 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
       }
     }
 
+    const std::vector<int> state_before = spot_of_beam;
     int newly_accepted = 0;
     int pass_ambiguous = 0;
+    std::vector<std::pair<std::vector<int>, std::vector<int>>> line_components;
     for (const auto& comp : components)
     {
       const std::vector<int>& beams = comp.first;
@@ -594,6 +950,14 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
       const int nb = static_cast<int>(beams.size());
       const int ns = static_cast<int>(spots.size());
       const int n = nb + ns;
+      if (pass == 0 && onOneGridLine(beams))
+      {
+        // Beams of one grid line that share candidates: their segments
+        // overlap along one epipolar line, where order-free matching proves
+        // little; the lines are read jointly below.
+        line_components.push_back(comp);
+        continue;
+      }
       // Rows: beams then one "spurious" row per spot; columns: spots then
       // one "no spot" column per beam.
       std::vector<double> cost(static_cast<size_t>(n) * n, kForbidden);
@@ -659,24 +1023,24 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
         }
       }
       if (component_ambiguous > 0 && pass == 0)
-      {
-        // Pairs accepted above stay; the ordered reading is tried on the
-        // component only when none was (a partly accepted line is left to
-        // the surface prior).
-        bool untouched = true;
-        for (int i : beams)
-          untouched &= spot_of_beam[i] < 0;
-        const int got = untouched ? acceptOrderedReading(beams, spots, cost, n, nb, ns) : 0;
-        newly_accepted += got;
-        if (got > 0)
-          component_ambiguous = 0;
-      }
+        line_components.push_back(comp);
       pass_ambiguous += component_ambiguous;
+    }
+    if (pass == 0 && !line_components.empty())
+    {
+      // Order-free matching cannot tell apart beams sharing an epipolar line
+      // (rows parallel to the baseline): read those lines jointly.
+      newly_accepted +=
+          resolveLines(line_components, spots_px, &spot_of_beam, &beam_of_spot, &accepted_point, &contested);
     }
     ambiguous = pass_ambiguous;
     if (config_.prediction_tolerance_px > 0.0)
       rejectInconsistent(spots_px, contested, &spot_of_beam, &beam_of_spot, &accepted_point);
-    if (newly_accepted == 0 && (pass > 0 || config_.prediction_tolerance_px <= 0.0))
+    // Progress is judged on the state after the consistency check: a pair
+    // accepted and dropped again in every pass is no progress (it made the
+    // loop run to max_passes: 2 ms per frame on the axis-aligned grid).
+    const bool progressed = spot_of_beam != state_before;
+    if (!progressed && (pass > 0 || config_.prediction_tolerance_px <= 0.0))
     {
       if (one_sided)
         break;

@@ -146,6 +146,28 @@ private:
   void rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px, const std::vector<char>& contested,
                           std::vector<int>* spot_of_beam, std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point) const;
 
+  // Point of `beam` for an undistorted spot pixel; false when the rays are parallel.
+  bool triangulatePixel(int beam, const Eigen::Vector2d& px, Eigen::Vector3d* p) const;
+  // Smoothness cost (0..1) between the dot of `beam` at pixel `px` and a
+  // grid neighbour's point `q`: squared distance, in units of twice the
+  // prediction tolerance, between px and where the beam would be at q's
+  // depth, capped at 1 (a depth edge costs as much as a missing dot).
+  double smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const;
+  // Joint reading of the grid lines whose beams share an epipolar line (rows
+  // parallel to the baseline): `lines` are the ambiguous candidate-graph
+  // components that lie on one grid row (or column). Each line gets a few
+  // ordered readings (order-preserving matchings along the line, by dynamic
+  // programming: the best one, the best through every candidate pair and the
+  // best without each pair of the best one), scored with the depth
+  // smoothness between grid neighbours; the lines are chained (row r next
+  // to r + 1) and solved exactly by min-sum dynamic programming. A pair is
+  // accepted when every reading without it costs at least ambiguity_margin
+  // more (min-marginals). Returns the number of accepted pairs.
+  int resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
+                   const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
+                   std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
+                   std::vector<char>* contested) const;
+
   CameraModel camera_;
   ProjectorCalibration projector_;
   TriangulatorOptions config_;
