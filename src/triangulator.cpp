@@ -185,6 +185,27 @@ Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration
     segments_[i].near_px = projectUndistorted(at_depth(config_.min_depth));
     segments_[i].far_px = projectUndistorted(at_depth(config_.max_depth));
   }
+  // Smoothness scale: half the image distance between neighbouring beams
+  // (median over the grid, at mid-range depth), so that reading a dot as its
+  // neighbour's (a shift by one column) costs the cap while the relief
+  // between neighbours costs little at any depth. Without neighbours: twice
+  // the prediction tolerance.
+  std::vector<double> pitch;
+  const auto mid = [&](int i) { return 0.5 * (segments_[i].near_px + segments_[i].far_px); };
+  for (int i = 0; i < projector_.beamCount(); ++i)
+  {
+    if ((i + 1) % projector_.cols != 0)
+      pitch.push_back((mid(i + 1) - mid(i)).norm());
+    if (i + projector_.cols < projector_.beamCount())
+      pitch.push_back((mid(i + projector_.cols) - mid(i)).norm());
+  }
+  smoothness_scale_px_ = 2.0 * config_.prediction_tolerance_px;
+  if (!pitch.empty())
+  {
+    std::nth_element(pitch.begin(), pitch.begin() + pitch.size() / 2, pitch.end());
+    if (pitch[pitch.size() / 2] > 0.0)
+      smoothness_scale_px_ = 0.5 * pitch[pitch.size() / 2];
+  }
 }
 
 Eigen::Vector2d Triangulator::projectUndistorted(const Eigen::Vector3d& p) const
@@ -276,7 +297,8 @@ int Triangulator::supportOf(int beam, const std::vector<int>& spot_of_beam,
 }
 
 void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px,
-                                      const std::vector<char>& contested, std::vector<int>* spot_of_beam,
+                                      const std::vector<char>& contested, const std::vector<char>& proven,
+                                      std::vector<int>* spot_of_beam,
                                       std::vector<int>* beam_of_spot,
                                       std::vector<Eigen::Vector3d>* accepted_point) const
 {
@@ -290,20 +312,23 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
   const int rows = projector_.rows, cols = projector_.cols;
   std::vector<int> reject;
   // Neighbours at whose depth beam i would be within tol of spot j.
-  const auto agreeing = [&](int i, int j, const std::vector<Eigen::Vector3d>& support) {
+  const auto agreeing = [&](int i, int j, const std::vector<Eigen::Vector3d>& support, double within) {
     const BeamRay& b = projector_.beams[i];
     int agree = 0;
     for (const Eigen::Vector3d& q : support)
     {
       const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
-      agree += (at_q - spots_px[j]).norm() <= tol;
+      agree += (at_q - spots_px[j]).norm() <= within;
     }
     return agree;
   };
   for (int i = 0; i < projector_.beamCount(); ++i)
   {
     const int j = (*spot_of_beam)[i];
-    if (j < 0)
+    // Pairs proven by the joint reading of their grid line already passed a
+    // stronger test with the same neighbours (the depth smoothness of every
+    // alternative reading, with the margin).
+    if (j < 0 || proven[i])
       continue;
     const int r = i / cols, c = i % cols;
     std::vector<Eigen::Vector3d> support;
@@ -327,10 +352,11 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
       const bool have_plane = supportOf(i, *spot_of_beam, *accepted_point, &wide) >= 1 && wide.size() >= 3 &&
                               predictPixel(i, wide, &px);
       const bool confirmed = have_plane && (px - spots_px[j]).norm() <= tol;
-      // Two neighbours that both disagree: a spot at a depth of its own
-      // (a one-dot object) is indistinguishable from a spurious spot on the
-      // segment of a missing dot, and the latter is the likelier.
-      const bool isolated = support.size() >= 2 && agreeing(i, j, support) == 0;
+      // Two neighbours that both disagree by more than half the beam pitch:
+      // a spot at a depth of its own (a one-dot object) is
+      // indistinguishable from a spurious spot on the segment of a missing
+      // dot, and the latter is the likelier.
+      const bool isolated = support.size() >= 2 && agreeing(i, j, support, smoothness_scale_px_) == 0;
       if ((have_plane && !confirmed) || (contested[i] && !confirmed) || isolated)
         reject.push_back(i);
       continue;
@@ -338,7 +364,7 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
     Eigen::Vector2d px;
     if (predictPixel(i, support, &px) && (px - spots_px[j]).norm() <= tol)
       continue;
-    if (agreeing(i, j, support) < 2)
+    if (agreeing(i, j, support, tol) < 2)
       reject.push_back(i);
   }
   for (int i : reject)
@@ -360,14 +386,14 @@ double Triangulator::smoothnessCost(int beam, const Eigen::Vector2d& px, const E
 {
   const BeamRay& b = projector_.beams[beam];
   const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
-  const double e = (at_q - px).norm() / (2.0 * config_.prediction_tolerance_px);
+  const double e = (at_q - px).norm() / smoothness_scale_px_;
   return std::isfinite(e) ? std::min(1.0, e * e) : 1.0;
 }
 
 int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
                                const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
                                std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
-                               std::vector<char>* contested) const
+                               std::vector<char>* proven) const
 {
   if (config_.prediction_tolerance_px <= 0.0)
     return 0;
@@ -435,13 +461,16 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
       if ((*beam_of_spot)[j] < 0)
         it->spots.push_back(j);
   }
-  const auto neighbours = [&](int i, int out[4]) {
+  // The 8-neighbourhood of a beam in the grid (-1 outside).
+  const auto neighbours = [&](int i, int out[8]) {
     const int r = i / cols, c = i % cols;
-    out[0] = r > 0 ? i - cols : -1;
-    out[1] = r + 1 < rows ? i + cols : -1;
-    out[2] = c > 0 ? i - 1 : -1;
-    out[3] = c + 1 < cols ? i + 1 : -1;
+    int n = 0;
+    for (int dr = -1; dr <= 1; ++dr)
+      for (int dc = -1; dc <= 1; ++dc)
+        if (dr != 0 || dc != 0)
+          out[n++] = r + dr >= 0 && r + dr < rows && c + dc >= 0 && c + dc < cols ? (r + dr) * cols + c + dc : -1;
   };
+  const auto lineOf = [&](int orient, int beam) { return orient == 0 ? beam / cols : beam % cols; };
 
   // Candidate pairs of every node.
   for (Node& nd : nodes)
@@ -475,7 +504,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
         if (!(d2 <= gate2) || !triangulatePixel(i, px, &pt))
           continue;
         double data = d2 / gate2;
-        int nb[4];
+        int nb[8];
         neighbours(i, nb);
         for (int n2 : nb)
           if (n2 >= 0 && (*spot_of_beam)[n2] >= 0)
@@ -664,14 +693,19 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
       const int pa = a.reading_pair[h][ka];
       if (pa < 0)
         continue;
-      const int kb = b.k_of_pos[posOf(a.orient, a.beams[ka])];
-      const int pb = kb >= 0 ? b.reading_pair[g][kb] : -1;
-      if (pb < 0)
-        continue;
-      double& v = cache[pa * npb + pb];
-      if (v < 0.0)
-        v = smoothnessCost(b.beams[kb], spots_px[b.spots[b.pairs[pb].l]], a.pairs[pa].point);
-      p += v;
+      // The neighbours across, straight and diagonal.
+      const int pos = posOf(a.orient, a.beams[ka]);
+      for (int other = std::max(0, pos - 1); other <= std::min<int>(b.k_of_pos.size() - 1, pos + 1); ++other)
+      {
+        const int kb = b.k_of_pos[other];
+        const int pb = kb >= 0 ? b.reading_pair[g][kb] : -1;
+        if (pb < 0)
+          continue;
+        double& v = cache[pa * npb + pb];
+        if (v < 0.0)
+          v = smoothnessCost(b.beams[kb], spots_px[b.spots[b.pairs[pb].l]], a.pairs[pa].point);
+        p += v;
+      }
     }
     return p;
   };
@@ -760,10 +794,10 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
       for (size_t p2 = 0; p2 < nd.pairs.size(); ++p2)
       {
         const int i = nd.beams[nd.pairs[p2].k];
-        int nb[4];
+        int nb[8];
         neighbours(i, nb);
         for (int n2 : nb)
-          if (n2 >= 0 && posOf(nd.orient, n2) == posOf(nd.orient, i) && current[n2].allFinite())
+          if (n2 >= 0 && lineOf(nd.orient, n2) != nd.line && current[n2].allFinite())
             extra[p2] += smoothnessCost(i, spots_px[nd.spots[nd.pairs[p2].l]], current[n2]);
       }
       // Unchanged neighbours give the same readings again.
@@ -799,9 +833,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
       (*spot_of_beam)[i] = j;
       (*beam_of_spot)[j] = i;
       (*accepted_point)[i] = nd.pairs[nd.pair_of[k * q + best[k]]].point;
-      // Proven with its neighbours' depths: it stands unless the
-      // consistency check finds a surface that contradicts it.
-      (*contested)[i] = 0;
+      (*proven)[i] = 1;
       ++accepted;
     }
   }
@@ -837,7 +869,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   // A beam is contested when it, or one of its candidate spots, has more
   // than one candidate, and it was settled with the surface prior (a pair
   // accepted on epipolar evidence alone stands on its own).
-  std::vector<char> contested(n_beams, 0);
+  std::vector<char> contested(n_beams, 0), proven(n_beams, 0);
   for (int i = 0; i < n_beams; ++i)
   {
     contested[i] = cand_of_beam[i].size() > 1;
@@ -1031,11 +1063,11 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
       // Order-free matching cannot tell apart beams sharing an epipolar line
       // (rows parallel to the baseline): read those lines jointly.
       newly_accepted +=
-          resolveLines(line_components, spots_px, &spot_of_beam, &beam_of_spot, &accepted_point, &contested);
+          resolveLines(line_components, spots_px, &spot_of_beam, &beam_of_spot, &accepted_point, &proven);
     }
     ambiguous = pass_ambiguous;
     if (config_.prediction_tolerance_px > 0.0)
-      rejectInconsistent(spots_px, contested, &spot_of_beam, &beam_of_spot, &accepted_point);
+      rejectInconsistent(spots_px, contested, proven, &spot_of_beam, &beam_of_spot, &accepted_point);
     // Progress is judged on the state after the consistency check: a pair
     // accepted and dropped again in every pass is no progress (it made the
     // loop run to max_passes: 2 ms per frame on the axis-aligned grid).

@@ -143,14 +143,16 @@ private:
   int supportOf(int beam, const std::vector<int>& spot_of_beam, const std::vector<Eigen::Vector3d>& accepted_point,
                   std::vector<Eigen::Vector3d>* support) const;
   // Drops accepted pairs that disagree with the surface of their neighbours.
+  // Pairs flagged in `proven` (settled by resolveLines) are not revisited.
   void rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px, const std::vector<char>& contested,
-                          std::vector<int>* spot_of_beam, std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point) const;
+                          const std::vector<char>& proven, std::vector<int>* spot_of_beam,
+                          std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point) const;
 
   // Point of `beam` for an undistorted spot pixel; false when the rays are parallel.
   bool triangulatePixel(int beam, const Eigen::Vector2d& px, Eigen::Vector3d* p) const;
   // Smoothness cost (0..1) between the dot of `beam` at pixel `px` and a
-  // grid neighbour's point `q`: squared distance, in units of twice the
-  // prediction tolerance, between px and where the beam would be at q's
+  // grid neighbour's point `q`: squared distance, in units of half the beam
+  // pitch in the image, between px and where the beam would be at q's
   // depth, capped at 1 (a depth edge costs as much as a missing dot).
   double smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const;
   // Joint reading of the grid lines whose beams share an epipolar line (rows
@@ -166,12 +168,13 @@ private:
   int resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
                    const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
                    std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
-                   std::vector<char>* contested) const;
+                   std::vector<char>* proven) const;
 
   CameraModel camera_;
   ProjectorCalibration projector_;
   TriangulatorOptions config_;
   std::vector<EpipolarSegment> segments_;
+  double smoothness_scale_px_ = 10.0;  // see the constructor
 };
 
 }  // namespace structured_light_stabilizer
