@@ -520,7 +520,12 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
       {
         const Pair& pa = nd.pairs[a2];
         const Pair& pb = nd.pairs[b2];
-        if (pb.k > pa.k && pb.l > pa.l && posOf(nd.orient, nd.beams[pb.k]) == posOf(nd.orient, nd.beams[pa.k]) + 1)
+        // Only between grid neighbours: comparing across a gap (a missing
+        // dot) also fixed two end-of-row dots in 500 test frames but let
+        // dots on an object in front of the rock be read two columns over
+        // (at nearly the rock's depth) in the permutation test.
+        if (pb.k > pa.k && pb.l > pa.l &&
+            posOf(nd.orient, nd.beams[pb.k]) == posOf(nd.orient, nd.beams[pa.k]) + 1)
           nd.S[a2 * np + b2] = smoothnessCost(nd.beams[pb.k], spots_px[nd.spots[pb.l]], pa.point);
       }
   }
@@ -556,20 +561,29 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
     const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
     const int np = static_cast<int>(nd.pairs.size());
     const auto cost = [&](int p2) { return nd.pairs[p2].data + extra[p2]; };
+    // First pair of each beam: predecessors of a pair are the pairs of
+    // earlier beams only.
+    std::vector<int> block(np);
+    for (int p2 = 0; p2 < np; ++p2)
+      block[p2] = p2 > 0 && nd.pairs[p2 - 1].k == nd.pairs[p2].k ? block[p2 - 1] : p2;
+    // F and pred must hold a run without `forbid` up to `forbid` (the values
+    // before the forbidden pair do not depend on it).
     const auto forward = [&](int forbid, std::vector<double>* F, std::vector<int>* pred) {
-      F->assign(np, inf);
-      pred->assign(np, -1);
-      for (int p2 = 0; p2 < np; ++p2)
+      for (int p2 = std::max(0, forbid); p2 < np; ++p2)
       {
         if (p2 == forbid)
+        {
+          (*F)[p2] = inf;
+          (*pred)[p2] = -1;
           continue;
+        }
         const Pair& pb = nd.pairs[p2];
         double best_in = pb.k + pb.l;
         int from = -1;
-        for (int p1 = 0; p1 < p2; ++p1)
+        for (int p1 = 0; p1 < block[p2]; ++p1)
         {
           const Pair& pa = nd.pairs[p1];
-          if (p1 == forbid || !(pa.k < pb.k && pa.l < pb.l))
+          if (p1 == forbid || pa.l >= pb.l)
             continue;
           const double v = (*F)[p1] + (pb.k - pa.k - 1) + (pb.l - pa.l - 1) + nd.S[p1 * np + p2];
           if (v < best_in)
@@ -626,8 +640,8 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
           rd[nd.pairs[p3].k] = nd.pairs[p3].l;
       found.push_back(rd);
     };
-    std::vector<double> F;
-    std::vector<int> pred;
+    std::vector<double> F(np, inf);
+    std::vector<int> pred(np, -1);
     forward(-1, &F, &pred);
     double best = 0.0;
     const int end = bestEnd(F, &best);
@@ -642,6 +656,8 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
     std::vector<int> predx;
     for (int p2 : best_pairs)
     {
+      Fx = F;
+      predx = pred;
       forward(p2, &Fx, &predx);
       double total = 0.0;
       trace(predx, bestEnd(Fx, &total), false);
@@ -811,6 +827,90 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
     solveChain();
   }
 
+  // Groups of dots that can slide along their lines. With rows parallel to
+  // the baseline, a run of dots along a line next to a free beam (a gap or
+  // the end of the line) can be read shifted by one beam at no cost in data;
+  // the reading is fixed only by depth smoothness with dots that cannot
+  // shift. An object in front of the rock is such a group: its dots are cut
+  // off from the rock by depth edges, and parallax hides the rock behind it
+  // from the camera, leaving free beams next to it, so the whole patch can
+  // shift (its depth changes, nothing contradicts it) and the smoothness
+  // prior even prefers the shift that hides its edge in the gap. Dots of a
+  // group that can slide and is not smoothly linked to one that cannot are
+  // left unassigned.
+  const int n_beams = projector_.beamCount();
+  std::vector<Eigen::Vector2d> map_px(n_beams, Eigen::Vector2d::Constant(kNaN));
+  std::vector<Eigen::Vector3d> map_pt(n_beams, Eigen::Vector3d::Constant(kNaN));
+  for (int i = 0; i < n_beams; ++i)
+    if ((*spot_of_beam)[i] >= 0)
+    {
+      map_px[i] = spots_px[(*spot_of_beam)[i]];
+      map_pt[i] = (*accepted_point)[i];
+    }
+  for (int t = 0; t < count; ++t)
+  {
+    const Node& nd = nodes[order[t]];
+    const int q = static_cast<int>(nd.spots.size());
+    for (size_t k = 0; k < nd.beams.size(); ++k)
+      if (nd.reading[nd.map][k] >= 0)
+      {
+        map_px[nd.beams[k]] = spots_px[nd.spots[nd.reading[nd.map][k]]];
+        map_pt[nd.beams[k]] = nd.pairs[nd.pair_of[k * q + nd.reading[nd.map][k]]].point;
+      }
+  }
+  const auto smooth = [&](int a, int b) { return smoothnessCost(b, map_px[b], map_pt[a]) < 1.0; };
+  std::vector<char> candidate(n_beams, 0);
+  for (int t = 0; t < count; ++t)
+  {
+    const Node& nd = nodes[order[t]];
+    const int n_pos = static_cast<int>(nd.k_of_pos.size());
+    const auto beamAt = [&](int pos) { return nd.orient == 0 ? nd.line * cols + pos : pos * cols + nd.line; };
+    std::vector<int> run;  // matched positions smoothly linked along the line (across gaps too)
+    const auto close = [&]() {
+      if (run.empty())
+        return;
+      const bool free_before = run.front() > 0 && !map_pt[beamAt(run.front() - 1)].allFinite();
+      const bool free_after = run.back() + 1 < n_pos && !map_pt[beamAt(run.back() + 1)].allFinite();
+      if (free_before || free_after)
+        for (int pos : run)
+          candidate[beamAt(pos)] = 1;
+      run.clear();
+    };
+    for (int pos = 0; pos < n_pos; ++pos)
+    {
+      if (!map_pt[beamAt(pos)].allFinite())
+        continue;
+      if (!run.empty() && !smooth(beamAt(run.back()), beamAt(pos)))
+        close();
+      run.push_back(pos);
+    }
+    close();
+  }
+  std::vector<char> anchored(n_beams, 0);
+  std::vector<int> stack;
+  for (int i = 0; i < n_beams; ++i)
+    if (map_pt[i].allFinite() && !candidate[i])
+    {
+      anchored[i] = 1;
+      stack.push_back(i);
+    }
+  while (!stack.empty())
+  {
+    const int i = stack.back();
+    stack.pop_back();
+    int nb[8];
+    neighbours(i, nb);
+    for (int n2 : nb)
+      if (n2 >= 0 && !anchored[n2] && map_pt[n2].allFinite() && smooth(i, n2))
+      {
+        anchored[n2] = 1;
+        stack.push_back(n2);
+      }
+  }
+  std::vector<char> sliding(n_beams, 0);
+  for (int i = 0; i < n_beams; ++i)
+    sliding[i] = candidate[i] && !anchored[i];
+
   // A pair stands when every reading of its line without it costs at least
   // the margin more.
   int accepted = 0;
@@ -821,7 +921,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
     const std::vector<int>& best = nd.reading[nd.map];
     for (size_t k = 0; k < nd.beams.size(); ++k)
     {
-      if (best[k] < 0)
+      if (best[k] < 0 || sliding[nd.beams[k]])
         continue;
       double alt = inf;
       for (size_t h = 0; h < nd.reading.size(); ++h)
@@ -1054,8 +1154,6 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
           ++component_ambiguous;
         }
       }
-      if (component_ambiguous > 0 && pass == 0)
-        line_components.push_back(comp);
       pass_ambiguous += component_ambiguous;
     }
     if (pass == 0 && !line_components.empty())

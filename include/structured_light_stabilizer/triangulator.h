@@ -151,9 +151,10 @@ private:
   // Point of `beam` for an undistorted spot pixel; false when the rays are parallel.
   bool triangulatePixel(int beam, const Eigen::Vector2d& px, Eigen::Vector3d* p) const;
   // Smoothness cost (0..1) between the dot of `beam` at pixel `px` and a
-  // grid neighbour's point `q`: squared distance, in units of half the beam
-  // pitch in the image, between px and where the beam would be at q's
-  // depth, capped at 1 (a depth edge costs as much as a missing dot).
+  // grid neighbour's point `q` (8-neighbourhood): squared distance, in units
+  // of half the beam pitch in the image, between px and where the beam would
+  // be at q's depth, capped at 1 (a depth edge costs as much as a missing
+  // dot; a dot read as its neighbour's, shifted by one pitch, costs the cap).
   double smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const;
   // Joint reading of the grid lines whose beams share an epipolar line (rows
   // parallel to the baseline): `lines` are the ambiguous candidate-graph
