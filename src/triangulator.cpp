@@ -199,13 +199,13 @@ Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration
     if (i + projector_.cols < projector_.beamCount())
       pitch.push_back((mid(i + projector_.cols) - mid(i)).norm());
   }
-  smoothness_scale_px_ = 2.0 * config_.prediction_tolerance_px;
+  beam_pitch_px_ = 0.0;
   if (!pitch.empty())
   {
     std::nth_element(pitch.begin(), pitch.begin() + pitch.size() / 2, pitch.end());
-    if (pitch[pitch.size() / 2] > 0.0)
-      smoothness_scale_px_ = 0.5 * pitch[pitch.size() / 2];
+    beam_pitch_px_ = pitch[pitch.size() / 2];
   }
+  smoothness_scale_px_ = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 2.0 * config_.prediction_tolerance_px;
 }
 
 Eigen::Vector2d Triangulator::projectUndistorted(const Eigen::Vector3d& p) const

@@ -129,6 +129,10 @@ public:
   const ProjectorCalibration& projector() const { return projector_; }
   const TriangulatorOptions& config() const { return config_; }
   const std::vector<EpipolarSegment>& segments() const { return segments_; }
+  // Median image distance between the segment midpoints of neighbouring
+  // beams (undistorted px; 0 for a single beam). A dot read as its row
+  // neighbour's moves by about this much.
+  double beamPitchPx() const { return beam_pitch_px_; }
 
 private:
   Eigen::Vector2d projectUndistorted(const Eigen::Vector3d& p) const;
@@ -175,6 +179,7 @@ private:
   ProjectorCalibration projector_;
   TriangulatorOptions config_;
   std::vector<EpipolarSegment> segments_;
+  double beam_pitch_px_ = 0.0;
   double smoothness_scale_px_ = 10.0;  // see the constructor
 };
 
