@@ -403,7 +403,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
   // Readings up to this much above a line's best are kept as hypotheses: a
   // reading shifted by one column costs the best + 0 or + 2 (a missing end
   // dot, a spurious one); the neighbouring lines have to decide.
-  const double window = 3.0;
+  const double window = 2.5;
   constexpr int kRounds = 2;  // a third round added nothing in 500 test frames
 
   struct Pair
@@ -692,7 +692,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
   if (count == 0)
     return 0;
   // Smoothness between the readings h of line a and g of the next line b:
-  // a sum over positions of a cost between two pairs, cached per pair of
+  // a sum over positions of a cost between two pairs, tabulated per pair of
   // pairs; the reading-by-reading tables are extended as readings are added.
   std::vector<std::vector<double>> pair_cost(count);
   std::vector<std::vector<std::vector<double>>> P(count);  // P[t][h][g]: order[t] with order[t + 1]
@@ -702,7 +702,20 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
     const int npb = static_cast<int>(b.pairs.size());
     std::vector<double>& cache = pair_cost[t];
     if (cache.empty())
-      cache.assign(a.pairs.size() * b.pairs.size(), -1.0);
+    {
+      // Every pair of pairs whose beams are neighbours across the lines.
+      cache.assign(a.pairs.size() * b.pairs.size(), 0.0);
+      for (size_t pa = 0; pa < a.pairs.size(); ++pa)
+      {
+        const int pos = posOf(a.orient, a.beams[a.pairs[pa].k]);
+        for (size_t pb = 0; pb < b.pairs.size(); ++pb)
+        {
+          const int kb = b.pairs[pb].k;
+          if (std::abs(posOf(b.orient, b.beams[kb]) - pos) <= 1)
+            cache[pa * npb + pb] = smoothnessCost(b.beams[kb], spots_px[b.spots[b.pairs[pb].l]], a.pairs[pa].point);
+        }
+      }
+    }
     double p = 0.0;
     for (size_t ka = 0; ka < a.beams.size(); ++ka)
     {
@@ -717,10 +730,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
         const int pb = kb >= 0 ? b.reading_pair[g][kb] : -1;
         if (pb < 0)
           continue;
-        double& v = cache[pa * npb + pb];
-        if (v < 0.0)
-          v = smoothnessCost(b.beams[kb], spots_px[b.spots[b.pairs[pb].l]], a.pairs[pa].point);
-        p += v;
+        p += cache[pa * npb + pb];
       }
     }
     return p;

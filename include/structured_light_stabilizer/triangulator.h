@@ -18,9 +18,10 @@
 // `ambiguity_margin` more; ambiguous pairs are retried with a surface prior
 // (the depth predicted from already accepted neighbouring beams) and are left
 // unassigned if still ambiguous: a beam is never given a dot it cannot be
-// proven to own. Beams of one grid row whose segments are collinear (rows
-// parallel to the baseline) are read in beam order when the order-free
-// assignment cannot tell them apart. Accepted dots that contradict their
+// proven to own. Beams of one grid row whose segments overlap on one line
+// (rows parallel to the baseline) are read jointly, row with row: ordered
+// readings of each row, chained across rows with a depth-smoothness cost
+// and solved exactly (resolveLines). Accepted dots that contradict their
 // accepted neighbours are dropped. "sort" is the study's method (rows of
 // `cols` spots from the top, each sorted by x), kept for comparison.
 #pragma once
