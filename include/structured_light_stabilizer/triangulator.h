@@ -162,15 +162,19 @@ private:
   // dot; a dot read as its neighbour's, shifted by one pitch, costs the cap).
   double smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const;
   // Joint reading of the grid lines whose beams share an epipolar line (rows
-  // parallel to the baseline): `lines` are the ambiguous candidate-graph
-  // components that lie on one grid row (or column). Each line gets a few
-  // ordered readings (order-preserving matchings along the line, by dynamic
-  // programming: the best one, the best through every candidate pair and the
-  // best without each pair of the best one), scored with the depth
-  // smoothness between grid neighbours; the lines are chained (row r next
-  // to r + 1) and solved exactly by min-sum dynamic programming. A pair is
-  // accepted when every reading without it costs at least ambiguity_margin
-  // more (min-marginals). Returns the number of accepted pairs.
+  // parallel to the baseline): `lines` are the candidate-graph components
+  // that lie on one grid row (or column). Each line gets a few ordered
+  // readings (order-preserving matchings along the line by dynamic
+  // programming, with depth smoothness between neighbouring beams: the best
+  // one, the best through every candidate pair, the best without each pair
+  // of the best one); the lines are chained (row r next to r + 1, smoothness
+  // over the 8-neighbourhood) and solved exactly by min-sum dynamic
+  // programming; a second round adds the readings that are best given the
+  // neighbouring lines' optimum. A pair is accepted when every reading
+  // without it costs at least ambiguity_margin more (min-marginals) and its
+  // group of dots cannot slide along the line (a free beam next to it and
+  // no smooth link to dots that cannot slide: an object in front of the
+  // rock). Accepted beams are flagged in *proven. Returns how many.
   int resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
                    const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
                    std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
