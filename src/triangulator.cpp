@@ -185,6 +185,27 @@ Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration
     segments_[i].near_px = projectUndistorted(at_depth(config_.min_depth));
     segments_[i].far_px = projectUndistorted(at_depth(config_.max_depth));
   }
+  // Smoothness scale: half the image distance between neighbouring beams
+  // (median over the grid, at mid-range depth), so that reading a dot as its
+  // neighbour's (a shift by one column) costs the cap while the relief
+  // between neighbours costs little at any depth. Without neighbours: twice
+  // the prediction tolerance.
+  std::vector<double> pitch;
+  const auto mid = [&](int i) { return 0.5 * (segments_[i].near_px + segments_[i].far_px); };
+  for (int i = 0; i < projector_.beamCount(); ++i)
+  {
+    if ((i + 1) % projector_.cols != 0)
+      pitch.push_back((mid(i + 1) - mid(i)).norm());
+    if (i + projector_.cols < projector_.beamCount())
+      pitch.push_back((mid(i + projector_.cols) - mid(i)).norm());
+  }
+  beam_pitch_px_ = 0.0;
+  if (!pitch.empty())
+  {
+    std::nth_element(pitch.begin(), pitch.begin() + pitch.size() / 2, pitch.end());
+    beam_pitch_px_ = pitch[pitch.size() / 2];
+  }
+  smoothness_scale_px_ = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 2.0 * config_.prediction_tolerance_px;
 }
 
 Eigen::Vector2d Triangulator::projectUndistorted(const Eigen::Vector3d& p) const
@@ -276,7 +297,8 @@ int Triangulator::supportOf(int beam, const std::vector<int>& spot_of_beam,
 }
 
 void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px,
-                                      const std::vector<char>& contested, std::vector<int>* spot_of_beam,
+                                      const std::vector<char>& contested, const std::vector<char>& proven,
+                                      std::vector<int>* spot_of_beam,
                                       std::vector<int>* beam_of_spot,
                                       std::vector<Eigen::Vector3d>* accepted_point) const
 {
@@ -289,10 +311,24 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
   const double tol = config_.prediction_tolerance_px;
   const int rows = projector_.rows, cols = projector_.cols;
   std::vector<int> reject;
+  // Neighbours at whose depth beam i would be within tol of spot j.
+  const auto agreeing = [&](int i, int j, const std::vector<Eigen::Vector3d>& support, double within) {
+    const BeamRay& b = projector_.beams[i];
+    int agree = 0;
+    for (const Eigen::Vector3d& q : support)
+    {
+      const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
+      agree += (at_q - spots_px[j]).norm() <= within;
+    }
+    return agree;
+  };
   for (int i = 0; i < projector_.beamCount(); ++i)
   {
     const int j = (*spot_of_beam)[i];
-    if (j < 0)
+    // Pairs proven by the joint reading of their grid line already passed a
+    // stronger test with the same neighbours (the depth smoothness of every
+    // alternative reading, with the margin).
+    if (j < 0 || proven[i])
       continue;
     const int r = i / cols, c = i % cols;
     std::vector<Eigen::Vector3d> support;
@@ -316,21 +352,19 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
       const bool have_plane = supportOf(i, *spot_of_beam, *accepted_point, &wide) >= 1 && wide.size() >= 3 &&
                               predictPixel(i, wide, &px);
       const bool confirmed = have_plane && (px - spots_px[j]).norm() <= tol;
-      if ((have_plane && !confirmed) || (contested[i] && !confirmed))
+      // Two neighbours that both disagree by more than half the beam pitch:
+      // a spot at a depth of its own (a one-dot object) is
+      // indistinguishable from a spurious spot on the segment of a missing
+      // dot, and the latter is the likelier.
+      const bool isolated = support.size() >= 2 && agreeing(i, j, support, smoothness_scale_px_) == 0;
+      if ((have_plane && !confirmed) || (contested[i] && !confirmed) || isolated)
         reject.push_back(i);
       continue;
     }
     Eigen::Vector2d px;
     if (predictPixel(i, support, &px) && (px - spots_px[j]).norm() <= tol)
       continue;
-    const BeamRay& b = projector_.beams[i];
-    int agree = 0;
-    for (const Eigen::Vector3d& q : support)
-    {
-      const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
-      agree += (at_q - spots_px[j]).norm() <= tol;
-    }
-    if (agree < 2)
+    if (agreeing(i, j, support, tol) < 2)
       reject.push_back(i);
   }
   for (int i : reject)
@@ -339,6 +373,581 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
     (*spot_of_beam)[i] = -1;
     (*accepted_point)[i] = Eigen::Vector3d::Constant(kNaN);
   }
+}
+
+bool Triangulator::triangulatePixel(int beam, const Eigen::Vector2d& px, Eigen::Vector3d* p) const
+{
+  const Eigen::Vector3d ray((px.x() - camera_.cx) / camera_.fx, (px.y() - camera_.cy) / camera_.fy, 1.0);
+  double gap = 0.0;
+  return triangulateBeam(ray, projector_.beams[beam], p, &gap);
+}
+
+double Triangulator::smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const
+{
+  const BeamRay& b = projector_.beams[beam];
+  const Eigen::Vector2d at_q = projectUndistorted(b.pointAt((q.z() - b.origin.z()) / b.direction.z()));
+  const double e = (at_q - px).norm() / smoothness_scale_px_;
+  return std::isfinite(e) ? std::min(1.0, e * e) : 1.0;
+}
+
+int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
+                               const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
+                               std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
+                               std::vector<char>* proven) const
+{
+  if (config_.prediction_tolerance_px <= 0.0)
+    return 0;
+  const int rows = projector_.rows, cols = projector_.cols;
+  const double gate2 = config_.max_epipolar_distance_px * config_.max_epipolar_distance_px;
+  const double inf = std::numeric_limits<double>::infinity();
+  // Readings up to this much above a line's best are kept as hypotheses: a
+  // reading shifted by one column costs the best + 0 or + 2 (a missing end
+  // dot, a spurious one); the neighbouring lines have to decide.
+  const double window = 2.5;
+  constexpr int kRounds = 2;  // a third round added nothing in 500 test frames
+
+  struct Pair
+  {
+    int k, l;              // local beam (along the line) and local spot (along the image line)
+    double data;           // epipolar cost + smoothness to accepted grid neighbours
+    Eigen::Vector3d point;
+  };
+  struct Node
+  {
+    int orient = 0;  // 0: a grid row, 1: a grid column
+    int line = 0;    // its row (column) index
+    std::vector<int> beams, spots;         // open ones, in order along the line
+    std::vector<Pair> pairs;               // in (k, l) order
+    std::vector<int> pair_of;              // k * spots + l -> pair, -1 = not a candidate
+    std::vector<double> S;                 // smoothness of consecutive matches, pairs x pairs
+    std::vector<std::vector<int>> reading; // per hypothesis: local spot per local beam, -1 = none
+    std::vector<double> unary;             // its cost within the line
+    std::vector<std::vector<int>> reading_pair;  // the same as pair indices
+    std::vector<int> k_of_pos;             // local beam at each position along the line, -1 = none
+    std::vector<double> last_extra;        // the neighbours' costs of the last generation
+    std::vector<double> marginal;          // min-marginal over the chain
+    int map = 0;                           // hypothesis of the chain's optimum
+  };
+  const auto posOf = [&](int orient, int beam) { return orient == 0 ? beam % cols : beam / cols; };
+
+  // One node per grid line: the open beams and spots of its components.
+  std::vector<Node> nodes;
+  for (const auto& comp : lines)
+  {
+    const std::vector<int>& cb = comp.first;
+    bool same_row = true, same_col = true;
+    for (int i : cb)
+    {
+      same_row &= i / cols == cb[0] / cols;
+      same_col &= i % cols == cb[0] % cols;
+    }
+    if (!same_row && !same_col)
+      continue;
+    const int orient = same_row ? 0 : 1;
+    const int line = same_row ? cb[0] / cols : cb[0] % cols;
+    auto it = std::find_if(nodes.begin(), nodes.end(),
+                           [&](const Node& nd) { return nd.orient == orient && nd.line == line; });
+    if (it == nodes.end())
+    {
+      nodes.emplace_back();
+      it = nodes.end() - 1;
+      it->orient = orient;
+      it->line = line;
+    }
+    for (int i : cb)
+      if ((*spot_of_beam)[i] < 0)
+        it->beams.push_back(i);
+    for (int j : comp.second)
+      if ((*beam_of_spot)[j] < 0)
+        it->spots.push_back(j);
+  }
+  // The 8-neighbourhood of a beam in the grid (-1 outside).
+  const auto neighbours = [&](int i, int out[8]) {
+    const int r = i / cols, c = i % cols;
+    int n = 0;
+    for (int dr = -1; dr <= 1; ++dr)
+      for (int dc = -1; dc <= 1; ++dc)
+        if (dr != 0 || dc != 0)
+          out[n++] = r + dr >= 0 && r + dr < rows && c + dc >= 0 && c + dc < cols ? (r + dr) * cols + c + dc : -1;
+  };
+  const auto lineOf = [&](int orient, int beam) { return orient == 0 ? beam / cols : beam % cols; };
+
+  // Candidate pairs of every node.
+  for (Node& nd : nodes)
+  {
+    std::sort(nd.beams.begin(), nd.beams.end(),
+              [&](int x, int y) { return posOf(nd.orient, x) < posOf(nd.orient, y); });
+    const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
+    if (m == 0 || q == 0)
+      continue;
+    // Image direction of increasing position along the line: on a surface
+    // without overhangs the dots keep the beams' order along it.
+    const auto mid = [&](int i) { return 0.5 * (segments_[i].near_px + segments_[i].far_px); };
+    const Eigen::Vector2d dir = m >= 2 ? Eigen::Vector2d(mid(nd.beams.back()) - mid(nd.beams.front()))
+                                       : Eigen::Vector2d(segments_[nd.beams[0]].far_px - segments_[nd.beams[0]].near_px);
+    if (!(dir.norm() > 1e-9))
+      continue;
+    std::sort(nd.spots.begin(), nd.spots.end(),
+              [&](int x, int y) { return spots_px[x].dot(dir) < spots_px[y].dot(dir); });
+    nd.k_of_pos.assign(nd.orient == 0 ? cols : rows, -1);
+    for (int k = 0; k < m; ++k)
+      nd.k_of_pos[posOf(nd.orient, nd.beams[k])] = k;
+    nd.pair_of.assign(static_cast<size_t>(m) * q, -1);
+    for (int k = 0; k < m; ++k)
+    {
+      const int i = nd.beams[k];
+      for (int l = 0; l < q; ++l)
+      {
+        const Eigen::Vector2d& px = spots_px[nd.spots[l]];
+        const double d2 = segmentDistance2(px, segments_[i].near_px, segments_[i].far_px);
+        Eigen::Vector3d pt;
+        if (!(d2 <= gate2) || !triangulatePixel(i, px, &pt))
+          continue;
+        double data = d2 / gate2;
+        int nb[8];
+        neighbours(i, nb);
+        for (int n2 : nb)
+          if (n2 >= 0 && (*spot_of_beam)[n2] >= 0)
+            data += smoothnessCost(i, px, (*accepted_point)[n2]);
+        nd.pair_of[k * q + l] = static_cast<int>(nd.pairs.size());
+        nd.pairs.push_back({k, l, data, pt});
+      }
+    }
+    const int np = static_cast<int>(nd.pairs.size());
+    nd.S.assign(static_cast<size_t>(np) * np, 0.0);
+    for (int a2 = 0; a2 < np; ++a2)
+      for (int b2 = 0; b2 < np; ++b2)
+      {
+        const Pair& pa = nd.pairs[a2];
+        const Pair& pb = nd.pairs[b2];
+        // Only between grid neighbours: comparing across a gap (a missing
+        // dot) also fixed two end-of-row dots in 500 test frames but let
+        // dots on an object in front of the rock be read two columns over
+        // (at nearly the rock's depth) in the permutation test.
+        if (pb.k > pa.k && pb.l > pa.l &&
+            posOf(nd.orient, nd.beams[pb.k]) == posOf(nd.orient, nd.beams[pa.k]) + 1)
+          nd.S[a2 * np + b2] = smoothnessCost(nd.beams[pb.k], spots_px[nd.spots[pb.l]], pa.point);
+      }
+  }
+
+  // Cost of a reading within its line: data, a beam without a spot or a
+  // spot without a beam 1 each, smoothness between neighbouring matches.
+  const auto readingCost = [&](const Node& nd, const std::vector<int>& rd) {
+    const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
+    const int np = static_cast<int>(nd.pairs.size());
+    double u = 0.0;
+    int matched = 0, prev = -1;
+    for (int k = 0; k < m; ++k)
+    {
+      if (rd[k] < 0)
+        continue;
+      const int p2 = nd.pair_of[k * q + rd[k]];
+      u += nd.pairs[p2].data;
+      if (prev >= 0)
+        u += nd.S[prev * np + p2];
+      prev = p2;
+      ++matched;
+    }
+    return u + (m - matched) + (q - matched);
+  };
+
+  // Adds to a node the readings that are best under the cost data + extra
+  // (per pair): the best one, the best through every pair within the
+  // window, and the best without each pair of the best one. This is an
+  // order-preserving matching with smoothness between consecutive matches,
+  // by dynamic programming over the pairs (F: best reading ending with a
+  // pair, B: best reading starting with it). Returns how many were new.
+  const auto generate = [&](Node& nd, const std::vector<double>& extra) {
+    const int m = static_cast<int>(nd.beams.size()), q = static_cast<int>(nd.spots.size());
+    const int np = static_cast<int>(nd.pairs.size());
+    const auto cost = [&](int p2) { return nd.pairs[p2].data + extra[p2]; };
+    // First pair of each beam: predecessors of a pair are the pairs of
+    // earlier beams only.
+    std::vector<int> block(np);
+    for (int p2 = 0; p2 < np; ++p2)
+      block[p2] = p2 > 0 && nd.pairs[p2 - 1].k == nd.pairs[p2].k ? block[p2 - 1] : p2;
+    // F and pred must hold a run without `forbid` up to `forbid` (the values
+    // before the forbidden pair do not depend on it).
+    const auto forward = [&](int forbid, std::vector<double>* F, std::vector<int>* pred) {
+      for (int p2 = std::max(0, forbid); p2 < np; ++p2)
+      {
+        if (p2 == forbid)
+        {
+          (*F)[p2] = inf;
+          (*pred)[p2] = -1;
+          continue;
+        }
+        const Pair& pb = nd.pairs[p2];
+        double best_in = pb.k + pb.l;
+        int from = -1;
+        for (int p1 = 0; p1 < block[p2]; ++p1)
+        {
+          const Pair& pa = nd.pairs[p1];
+          if (p1 == forbid || pa.l >= pb.l)
+            continue;
+          const double v = (*F)[p1] + (pb.k - pa.k - 1) + (pb.l - pa.l - 1) + nd.S[p1 * np + p2];
+          if (v < best_in)
+          {
+            best_in = v;
+            from = p1;
+          }
+        }
+        (*F)[p2] = cost(p2) + best_in;
+        (*pred)[p2] = from;
+      }
+    };
+    const auto bestEnd = [&](const std::vector<double>& F, double* total) {
+      *total = m + q;
+      int end = -1;
+      for (int p2 = 0; p2 < np; ++p2)
+      {
+        const double v = F[p2] + (m - 1 - nd.pairs[p2].k) + (q - 1 - nd.pairs[p2].l);
+        if (v < *total)
+        {
+          *total = v;
+          end = p2;
+        }
+      }
+      return end;
+    };
+    std::vector<double> B(np, inf);
+    std::vector<int> succ(np, -1);
+    for (int p2 = np - 1; p2 >= 0; --p2)
+    {
+      const Pair& pa = nd.pairs[p2];
+      double best_out = (m - 1 - pa.k) + (q - 1 - pa.l);
+      for (int p3 = p2 + 1; p3 < np; ++p3)
+      {
+        const Pair& pb = nd.pairs[p3];
+        if (!(pb.k > pa.k && pb.l > pa.l))
+          continue;
+        const double v = B[p3] + (pb.k - pa.k - 1) + (pb.l - pa.l - 1) + nd.S[p2 * np + p3];
+        if (v < best_out)
+        {
+          best_out = v;
+          succ[p2] = p3;
+        }
+      }
+      B[p2] = cost(p2) + best_out;
+    }
+    std::vector<std::vector<int>> found;
+    const auto trace = [&](const std::vector<int>& pred, int p2, bool forward_too) {
+      std::vector<int> rd(m, -1);
+      for (int p1 = p2; p1 >= 0; p1 = pred[p1])
+        rd[nd.pairs[p1].k] = nd.pairs[p1].l;
+      if (forward_too && p2 >= 0)
+        for (int p3 = succ[p2]; p3 >= 0; p3 = succ[p3])
+          rd[nd.pairs[p3].k] = nd.pairs[p3].l;
+      found.push_back(rd);
+    };
+    std::vector<double> F(np, inf);
+    std::vector<int> pred(np, -1);
+    forward(-1, &F, &pred);
+    double best = 0.0;
+    const int end = bestEnd(F, &best);
+    trace(pred, end, false);
+    std::vector<int> best_pairs;
+    for (int p2 = end; p2 >= 0; p2 = pred[p2])
+      best_pairs.push_back(p2);
+    for (int p2 = 0; p2 < np; ++p2)
+      if (F[p2] + B[p2] - cost(p2) <= best + window)
+        trace(pred, p2, true);
+    std::vector<double> Fx;
+    std::vector<int> predx;
+    for (int p2 : best_pairs)
+    {
+      Fx = F;
+      predx = pred;
+      forward(p2, &Fx, &predx);
+      double total = 0.0;
+      trace(predx, bestEnd(Fx, &total), false);
+    }
+    int added = 0;
+    for (const std::vector<int>& rd : found)
+    {
+      if (std::find(nd.reading.begin(), nd.reading.end(), rd) != nd.reading.end())
+        continue;
+      nd.reading.push_back(rd);
+      nd.unary.push_back(readingCost(nd, rd));
+      std::vector<int> rp(m, -1);
+      for (int k = 0; k < m; ++k)
+        if (rd[k] >= 0)
+          rp[k] = nd.pair_of[k * q + rd[k]];
+      nd.reading_pair.push_back(rp);
+      ++added;
+    }
+    return added;
+  };
+
+  // Lines with readings, chained in order; consecutive lines of the same
+  // orientation are grid neighbours.
+  std::vector<int> order;
+  for (int n = 0; n < static_cast<int>(nodes.size()); ++n)
+    if (!nodes[n].pairs.empty())
+      order.push_back(n);
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    return nodes[a].orient != nodes[b].orient ? nodes[a].orient < nodes[b].orient : nodes[a].line < nodes[b].line;
+  });
+  const int count = static_cast<int>(order.size());
+  if (count == 0)
+    return 0;
+  // Smoothness between the readings h of line a and g of the next line b:
+  // a sum over positions of a cost between two pairs, tabulated per pair of
+  // pairs; the reading-by-reading tables are extended as readings are added.
+  std::vector<std::vector<double>> pair_cost(count);
+  std::vector<std::vector<std::vector<double>>> P(count);  // P[t][h][g]: order[t] with order[t + 1]
+  const auto pairwise = [&](int t, int h, int g) {
+    const Node& a = nodes[order[t]];
+    const Node& b = nodes[order[t + 1]];
+    const int npb = static_cast<int>(b.pairs.size());
+    std::vector<double>& cache = pair_cost[t];
+    if (cache.empty())
+    {
+      // Every pair of pairs whose beams are neighbours across the lines.
+      cache.assign(a.pairs.size() * b.pairs.size(), 0.0);
+      for (size_t pa = 0; pa < a.pairs.size(); ++pa)
+      {
+        const int pos = posOf(a.orient, a.beams[a.pairs[pa].k]);
+        for (size_t pb = 0; pb < b.pairs.size(); ++pb)
+        {
+          const int kb = b.pairs[pb].k;
+          if (std::abs(posOf(b.orient, b.beams[kb]) - pos) <= 1)
+            cache[pa * npb + pb] = smoothnessCost(b.beams[kb], spots_px[b.spots[b.pairs[pb].l]], a.pairs[pa].point);
+        }
+      }
+    }
+    double p = 0.0;
+    for (size_t ka = 0; ka < a.beams.size(); ++ka)
+    {
+      const int pa = a.reading_pair[h][ka];
+      if (pa < 0)
+        continue;
+      // The neighbours across, straight and diagonal.
+      const int pos = posOf(a.orient, a.beams[ka]);
+      for (int other = std::max(0, pos - 1); other <= std::min<int>(b.k_of_pos.size() - 1, pos + 1); ++other)
+      {
+        const int kb = b.k_of_pos[other];
+        const int pb = kb >= 0 ? b.reading_pair[g][kb] : -1;
+        if (pb < 0)
+          continue;
+        p += cache[pa * npb + pb];
+      }
+    }
+    return p;
+  };
+  // Exact min-sum over the chain: forward and backward messages give every
+  // reading's min-marginal (the cost of the best joint reading that uses it).
+  const auto solveChain = [&]() {
+    std::vector<std::vector<double>> fwd(count), bwd(count);
+    for (int t = 0; t < count; ++t)
+    {
+      const Node& a = nodes[order[t]];
+      fwd[t].assign(a.reading.size(), 0.0);
+      bwd[t].assign(a.reading.size(), 0.0);
+      if (t + 1 == count)
+        continue;
+      const Node& b = nodes[order[t + 1]];
+      const bool linked = a.orient == b.orient && b.line == a.line + 1;
+      P[t].resize(a.reading.size());
+      for (size_t h = 0; h < a.reading.size(); ++h)
+        for (size_t g = P[t][h].size(); g < b.reading.size(); ++g)
+          P[t][h].push_back(linked ? pairwise(t, static_cast<int>(h), static_cast<int>(g)) : 0.0);
+    }
+    for (int t = 1; t < count; ++t)
+    {
+      const Node& a = nodes[order[t - 1]];
+      for (size_t g = 0; g < fwd[t].size(); ++g)
+      {
+        double v = inf;
+        for (size_t h = 0; h < a.reading.size(); ++h)
+          v = std::min(v, fwd[t - 1][h] + a.unary[h] + P[t - 1][h][g]);
+        fwd[t][g] = v;
+      }
+    }
+    for (int t = count - 2; t >= 0; --t)
+    {
+      const Node& b = nodes[order[t + 1]];
+      for (size_t h = 0; h < bwd[t].size(); ++h)
+      {
+        double v = inf;
+        for (size_t g = 0; g < b.reading.size(); ++g)
+          v = std::min(v, bwd[t + 1][g] + b.unary[g] + P[t][h][g]);
+        bwd[t][h] = v;
+      }
+    }
+    for (int t = 0; t < count; ++t)
+    {
+      Node& nd = nodes[order[t]];
+      nd.marginal.resize(nd.reading.size());
+      nd.map = 0;
+      for (size_t h = 0; h < nd.reading.size(); ++h)
+      {
+        nd.marginal[h] = nd.unary[h] + fwd[t][h] + bwd[t][h];
+        if (nd.marginal[h] < nd.marginal[nd.map])
+          nd.map = static_cast<int>(h);
+      }
+    }
+  };
+
+  // Round 0: readings from each line alone. Later rounds add the readings
+  // that are best given the neighbouring lines' current optimum: when a
+  // line's own evidence ties (a missing dot lets part of a row shift), the
+  // reading its neighbours agree with may not be among the first ones.
+  for (int t = 0; t < count; ++t)
+  {
+    Node& nd = nodes[order[t]];
+    nd.last_extra.assign(nd.pairs.size(), 0.0);
+    generate(nd, nd.last_extra);
+  }
+  solveChain();
+  std::vector<Eigen::Vector3d> current(projector_.beamCount());
+  for (int round = 1; round < kRounds; ++round)
+  {
+    std::fill(current.begin(), current.end(), Eigen::Vector3d::Constant(kNaN));
+    for (int t = 0; t < count; ++t)
+    {
+      const Node& nd = nodes[order[t]];
+      const int q = static_cast<int>(nd.spots.size());
+      for (size_t k = 0; k < nd.beams.size(); ++k)
+        if (nd.reading[nd.map][k] >= 0)
+          current[nd.beams[k]] = nd.pairs[nd.pair_of[k * q + nd.reading[nd.map][k]]].point;
+    }
+    int added = 0;
+    for (int t = 0; t < count; ++t)
+    {
+      Node& nd = nodes[order[t]];
+      std::vector<double> extra(nd.pairs.size(), 0.0);
+      for (size_t p2 = 0; p2 < nd.pairs.size(); ++p2)
+      {
+        const int i = nd.beams[nd.pairs[p2].k];
+        int nb[8];
+        neighbours(i, nb);
+        for (int n2 : nb)
+          if (n2 >= 0 && lineOf(nd.orient, n2) != nd.line && current[n2].allFinite())
+            extra[p2] += smoothnessCost(i, spots_px[nd.spots[nd.pairs[p2].l]], current[n2]);
+      }
+      // Unchanged neighbours give the same readings again.
+      if (extra == nd.last_extra)
+        continue;
+      nd.last_extra = extra;
+      added += generate(nd, extra);
+    }
+    if (added == 0)
+      break;
+    solveChain();
+  }
+
+  // Groups of dots that can slide along their lines. With rows parallel to
+  // the baseline, a run of dots along a line next to a free beam (a gap or
+  // the end of the line) can be read shifted by one beam at no cost in data;
+  // the reading is fixed only by depth smoothness with dots that cannot
+  // shift. An object in front of the rock is such a group: its dots are cut
+  // off from the rock by depth edges, and parallax hides the rock behind it
+  // from the camera, leaving free beams next to it, so the whole patch can
+  // shift (its depth changes, nothing contradicts it) and the smoothness
+  // prior even prefers the shift that hides its edge in the gap. Dots of a
+  // group that can slide and is not smoothly linked to one that cannot are
+  // left unassigned.
+  const int n_beams = projector_.beamCount();
+  std::vector<Eigen::Vector2d> map_px(n_beams, Eigen::Vector2d::Constant(kNaN));
+  std::vector<Eigen::Vector3d> map_pt(n_beams, Eigen::Vector3d::Constant(kNaN));
+  for (int i = 0; i < n_beams; ++i)
+    if ((*spot_of_beam)[i] >= 0)
+    {
+      map_px[i] = spots_px[(*spot_of_beam)[i]];
+      map_pt[i] = (*accepted_point)[i];
+    }
+  for (int t = 0; t < count; ++t)
+  {
+    const Node& nd = nodes[order[t]];
+    const int q = static_cast<int>(nd.spots.size());
+    for (size_t k = 0; k < nd.beams.size(); ++k)
+      if (nd.reading[nd.map][k] >= 0)
+      {
+        map_px[nd.beams[k]] = spots_px[nd.spots[nd.reading[nd.map][k]]];
+        map_pt[nd.beams[k]] = nd.pairs[nd.pair_of[k * q + nd.reading[nd.map][k]]].point;
+      }
+  }
+  const auto smooth = [&](int a, int b) { return smoothnessCost(b, map_px[b], map_pt[a]) < 1.0; };
+  std::vector<char> candidate(n_beams, 0);
+  for (int t = 0; t < count; ++t)
+  {
+    const Node& nd = nodes[order[t]];
+    const int n_pos = static_cast<int>(nd.k_of_pos.size());
+    const auto beamAt = [&](int pos) { return nd.orient == 0 ? nd.line * cols + pos : pos * cols + nd.line; };
+    std::vector<int> run;  // matched positions smoothly linked along the line (across gaps too)
+    const auto close = [&]() {
+      if (run.empty())
+        return;
+      const bool free_before = run.front() > 0 && !map_pt[beamAt(run.front() - 1)].allFinite();
+      const bool free_after = run.back() + 1 < n_pos && !map_pt[beamAt(run.back() + 1)].allFinite();
+      if (free_before || free_after)
+        for (int pos : run)
+          candidate[beamAt(pos)] = 1;
+      run.clear();
+    };
+    for (int pos = 0; pos < n_pos; ++pos)
+    {
+      if (!map_pt[beamAt(pos)].allFinite())
+        continue;
+      if (!run.empty() && !smooth(beamAt(run.back()), beamAt(pos)))
+        close();
+      run.push_back(pos);
+    }
+    close();
+  }
+  std::vector<char> anchored(n_beams, 0);
+  std::vector<int> stack;
+  for (int i = 0; i < n_beams; ++i)
+    if (map_pt[i].allFinite() && !candidate[i])
+    {
+      anchored[i] = 1;
+      stack.push_back(i);
+    }
+  while (!stack.empty())
+  {
+    const int i = stack.back();
+    stack.pop_back();
+    int nb[8];
+    neighbours(i, nb);
+    for (int n2 : nb)
+      if (n2 >= 0 && !anchored[n2] && map_pt[n2].allFinite() && smooth(i, n2))
+      {
+        anchored[n2] = 1;
+        stack.push_back(n2);
+      }
+  }
+  std::vector<char> sliding(n_beams, 0);
+  for (int i = 0; i < n_beams; ++i)
+    sliding[i] = candidate[i] && !anchored[i];
+
+  // A pair stands when every reading of its line without it costs at least
+  // the margin more.
+  int accepted = 0;
+  for (int t = 0; t < count; ++t)
+  {
+    const Node& nd = nodes[order[t]];
+    const int q = static_cast<int>(nd.spots.size());
+    const std::vector<int>& best = nd.reading[nd.map];
+    for (size_t k = 0; k < nd.beams.size(); ++k)
+    {
+      if (best[k] < 0 || sliding[nd.beams[k]])
+        continue;
+      double alt = inf;
+      for (size_t h = 0; h < nd.reading.size(); ++h)
+        if (nd.reading[h][k] != best[k])
+          alt = std::min(alt, nd.marginal[h]);
+      if (!(alt - nd.marginal[nd.map] >= config_.ambiguity_margin) || !std::isfinite(alt))
+        continue;
+      const int i = nd.beams[k], j = nd.spots[best[k]];
+      (*spot_of_beam)[i] = j;
+      (*beam_of_spot)[j] = i;
+      (*accepted_point)[i] = nd.pairs[nd.pair_of[k * q + best[k]]].point;
+      (*proven)[i] = 1;
+      ++accepted;
+    }
+  }
+  return accepted;
 }
 
 std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>& spots_px, int* ambiguous_out) const
@@ -370,7 +979,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   // A beam is contested when it, or one of its candidate spots, has more
   // than one candidate, and it was settled with the surface prior (a pair
   // accepted on epipolar evidence alone stands on its own).
-  std::vector<char> contested(n_beams, 0);
+  std::vector<char> contested(n_beams, 0), proven(n_beams, 0);
   for (int i = 0; i < n_beams; ++i)
   {
     contested[i] = cand_of_beam[i].size() > 1;
@@ -383,132 +992,19 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   int ambiguous = 0;
 
   const auto triangulateCandidate = [&](int beam, int spot, Eigen::Vector3d* p) {
-    const Eigen::Vector3d ray((spots_px[spot].x() - camera_.cx) / camera_.fx,
-                              (spots_px[spot].y() - camera_.cy) / camera_.fy, 1.0);
-    double gap = 0.0;
-    return triangulateBeam(ray, projector_.beams[beam], p, &gap);
+    return triangulatePixel(beam, spots_px[spot], p);
   };
 
-  // Beams of one projector row (or column) share one epipolar line when the
-  // rows are parallel to the baseline: any two of their dots can then be
-  // swapped at no cost and the order-free assignment proves nothing. A
-  // smooth surface keeps the dots in beam order, so the ordered reading
-  // (minimum-cost order-preserving matching, by dynamic programming) is
-  // accepted when every pair of it is unique by the margin among ordered
-  // readings and the depths it gives are smooth along the line. A shifted
-  // reading (a missing end dot) ties and is left to the surface prior.
-  const auto acceptOrderedReading = [&](const std::vector<int>& comp_beams, const std::vector<int>& comp_spots,
-                                        const std::vector<double>& cost, int n, int nb, int ns) -> int {
+  const auto onOneGridLine = [&](const std::vector<int>& beams) {
     const int cols = projector_.cols;
-    if (comp_beams.size() < 2 || config_.prediction_tolerance_px <= 0.0)
-      return 0;
     bool same_row = true, same_col = true;
-    for (int i : comp_beams)
+    for (int i : beams)
     {
-      same_row &= i / cols == comp_beams[0] / cols;
-      same_col &= i % cols == comp_beams[0] % cols;
+      same_row &= i / cols == beams[0] / cols;
+      same_col &= i % cols == beams[0] % cols;
     }
-    if (!same_row && !same_col)
-      return 0;
-    // Local indices sorted along the grid line and along the image line.
-    std::vector<int> ka(nb), la(ns);
-    std::iota(ka.begin(), ka.end(), 0);
-    std::iota(la.begin(), la.end(), 0);
-    std::sort(ka.begin(), ka.end(), [&](int x, int y) { return comp_beams[x] < comp_beams[y]; });
-    const auto mid = [&](int a) { return 0.5 * (segments_[comp_beams[a]].near_px + segments_[comp_beams[a]].far_px); };
-    const Eigen::Vector2d dir = mid(ka.back()) - mid(ka.front());
-    if (!(dir.norm() > 1e-6))
-      return 0;
-    std::sort(la.begin(), la.end(),
-              [&](int x, int y) { return spots_px[comp_spots[x]].dot(dir) < spots_px[comp_spots[y]].dot(dir); });
-    const int m = nb, q = ns;
-    // D[k][l]: best cost of the first k beams and first l spots (in order).
-    const auto solve = [&](int forbid_k, int forbid_l, std::vector<int>* match) {
-      std::vector<double> D((m + 1) * (q + 1), 0.0);
-      std::vector<char> how((m + 1) * (q + 1), 0);
-      for (int k = 0; k <= m; ++k)
-      {
-        for (int l = 0; l <= q; ++l)
-        {
-          if (k == 0 && l == 0)
-            continue;
-          double best = std::numeric_limits<double>::infinity();
-          char h = 0;
-          if (k > 0 && D[(k - 1) * (q + 1) + l] + 1.0 < best)
-          {
-            best = D[(k - 1) * (q + 1) + l] + 1.0;
-            h = 1;
-          }
-          if (l > 0 && D[k * (q + 1) + l - 1] + 1.0 < best)
-          {
-            best = D[k * (q + 1) + l - 1] + 1.0;
-            h = 2;
-          }
-          if (k > 0 && l > 0 && !(k - 1 == forbid_k && l - 1 == forbid_l))
-          {
-            const double c = cost[ka[k - 1] * n + la[l - 1]];
-            if (c < kForbidden && D[(k - 1) * (q + 1) + l - 1] + c < best)
-            {
-              best = D[(k - 1) * (q + 1) + l - 1] + c;
-              h = 3;
-            }
-          }
-          D[k * (q + 1) + l] = best;
-          how[k * (q + 1) + l] = h;
-        }
-      }
-      if (match)
-      {
-        match->assign(m, -1);
-        for (int k = m, l = q; k > 0 || l > 0;)
-        {
-          const char h = how[k * (q + 1) + l];
-          if (h == 3)
-            (*match)[k - 1] = l - 1;
-          k -= (h == 1 || h == 3);
-          l -= (h == 2 || h == 3);
-        }
-      }
-      return D[m * (q + 1) + q];
-    };
-    std::vector<int> match;
-    const double best = solve(-1, -1, &match);
-    int prev = -1;
-    Eigen::Vector3d prev_point = Eigen::Vector3d::Zero();
-    std::vector<std::pair<int, Eigen::Vector3d>> reading;
-    for (int k = 0; k < m; ++k)
-    {
-      if (match[k] < 0)
-        continue;
-      if (solve(k, match[k], nullptr) - best < config_.ambiguity_margin)
-        return 0;
-      const int i = comp_beams[ka[k]], j = comp_spots[la[match[k]]];
-      Eigen::Vector3d p;
-      if (!triangulateCandidate(i, j, &p))
-        return 0;
-      if (prev >= 0)
-      {
-        // Where beam i would be at the depth of the previous dot of the line.
-        const BeamRay& b = projector_.beams[i];
-        const Eigen::Vector2d at_prev = projectUndistorted(b.pointAt((prev_point.z() - b.origin.z()) / b.direction.z()));
-        if ((at_prev - spots_px[j]).norm() > 3.0 * config_.prediction_tolerance_px * (k - prev))
-          return 0;
-      }
-      prev = k;
-      prev_point = p;
-      reading.push_back({k, p});
-    }
-    for (const auto& kp : reading)
-    {
-      const int i = comp_beams[ka[kp.first]], j = comp_spots[la[match[kp.first]]];
-      spot_of_beam[i] = j;
-      beam_of_spot[j] = i;
-      accepted_point[i] = kp.second;
-      contested[i] = 0;
-    }
-    return static_cast<int>(reading.size());
+    return beams.size() >= 2 && (same_row || same_col);
   };
-
   const int max_passes = 4 + 2 * (projector_.rows + projector_.cols);
   // Only interpolation between accepted neighbours on opposite sides is
   // used: extrapolating from one side favours whatever reading puts the spot
@@ -585,8 +1081,10 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
       }
     }
 
+    const std::vector<int> state_before = spot_of_beam;
     int newly_accepted = 0;
     int pass_ambiguous = 0;
+    std::vector<std::pair<std::vector<int>, std::vector<int>>> line_components;
     for (const auto& comp : components)
     {
       const std::vector<int>& beams = comp.first;
@@ -594,6 +1092,14 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
       const int nb = static_cast<int>(beams.size());
       const int ns = static_cast<int>(spots.size());
       const int n = nb + ns;
+      if (pass == 0 && onOneGridLine(beams))
+      {
+        // Beams of one grid line that share candidates: their segments
+        // overlap along one epipolar line, where order-free matching proves
+        // little; the lines are read jointly below.
+        line_components.push_back(comp);
+        continue;
+      }
       // Rows: beams then one "spurious" row per spot; columns: spots then
       // one "no spot" column per beam.
       std::vector<double> cost(static_cast<size_t>(n) * n, kForbidden);
@@ -658,25 +1164,23 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
           ++component_ambiguous;
         }
       }
-      if (component_ambiguous > 0 && pass == 0)
-      {
-        // Pairs accepted above stay; the ordered reading is tried on the
-        // component only when none was (a partly accepted line is left to
-        // the surface prior).
-        bool untouched = true;
-        for (int i : beams)
-          untouched &= spot_of_beam[i] < 0;
-        const int got = untouched ? acceptOrderedReading(beams, spots, cost, n, nb, ns) : 0;
-        newly_accepted += got;
-        if (got > 0)
-          component_ambiguous = 0;
-      }
       pass_ambiguous += component_ambiguous;
+    }
+    if (pass == 0 && !line_components.empty())
+    {
+      // Order-free matching cannot tell apart beams sharing an epipolar line
+      // (rows parallel to the baseline): read those lines jointly.
+      newly_accepted +=
+          resolveLines(line_components, spots_px, &spot_of_beam, &beam_of_spot, &accepted_point, &proven);
     }
     ambiguous = pass_ambiguous;
     if (config_.prediction_tolerance_px > 0.0)
-      rejectInconsistent(spots_px, contested, &spot_of_beam, &beam_of_spot, &accepted_point);
-    if (newly_accepted == 0 && (pass > 0 || config_.prediction_tolerance_px <= 0.0))
+      rejectInconsistent(spots_px, contested, proven, &spot_of_beam, &beam_of_spot, &accepted_point);
+    // Progress is judged on the state after the consistency check: a pair
+    // accepted and dropped again in every pass is no progress (it made the
+    // loop run to max_passes: 2 ms per frame on the axis-aligned grid).
+    const bool progressed = spot_of_beam != state_before;
+    if (!progressed && (pass > 0 || config_.prediction_tolerance_px <= 0.0))
     {
       if (one_sided)
         break;

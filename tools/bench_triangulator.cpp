@@ -4,7 +4,9 @@
 // spots, 0.04 px noise; rolled (5 deg) and axis-aligned grids, and the
 // study's sort for comparison. Usage: bench_triangulator [frames]
 #include <chrono>
+#include <algorithm>
 #include <cstdlib>
+#include <vector>
 #include <iostream>
 
 #include "../test/gtest/triangulator_scene.h"
@@ -39,13 +41,29 @@ int main(int argc, char** argv)
       o.assignment = method;
       const Triangulator tri(cam, proj, o);
       long points = 0;
+      std::vector<TriangulationResult> results;
+      results.reserve(input.size());
       const auto t0 = std::chrono::steady_clock::now();
       for (const auto& f : input)
-        points += tri.process(f.spots).valid_points;
+      {
+        results.push_back(tri.process(f.spots));
+        points += results.back().valid_points;
+      }
       const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      // Identification against the truth (spot.beam), outside the timing.
+      long visible = 0, right = 0, wrong = 0;
+      for (size_t k = 0; k < input.size(); ++k)
+        for (size_t j = 0; j < input[k].spots.size(); ++j)
+        {
+          const int truth = input[k].spots[j].beam, got = results[k].beam_of_spot[j];
+          visible += truth >= 0;
+          right += got >= 0 && got == truth;
+          wrong += got >= 0 && got != truth;
+        }
       std::cout << "roll " << roll * 180.0 / M_PI << " deg, " << (method == BeamAssignment::kSort ? "sort    " : "epipolar")
-                << ": " << ms / frames << " ms/frame, " << static_cast<double>(points) / frames
-                << " points/frame\n";
+                << ": " << ms / frames << " ms/frame, " << static_cast<double>(points) / frames << " points/frame, "
+                << right << "/" << visible << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong
+                << " wrong\n";
     }
   }
   return 0;

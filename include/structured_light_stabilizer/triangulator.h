@@ -18,9 +18,10 @@
 // `ambiguity_margin` more; ambiguous pairs are retried with a surface prior
 // (the depth predicted from already accepted neighbouring beams) and are left
 // unassigned if still ambiguous: a beam is never given a dot it cannot be
-// proven to own. Beams of one grid row whose segments are collinear (rows
-// parallel to the baseline) are read in beam order when the order-free
-// assignment cannot tell them apart. Accepted dots that contradict their
+// proven to own. Beams of one grid row whose segments overlap on one line
+// (rows parallel to the baseline) are read jointly, row with row: ordered
+// readings of each row, chained across rows with a depth-smoothness cost
+// and solved exactly (resolveLines). Accepted dots that contradict their
 // accepted neighbours are dropped. "sort" is the study's method (rows of
 // `cols` spots from the top, each sorted by x), kept for comparison.
 #pragma once
@@ -129,6 +130,10 @@ public:
   const ProjectorCalibration& projector() const { return projector_; }
   const TriangulatorOptions& config() const { return config_; }
   const std::vector<EpipolarSegment>& segments() const { return segments_; }
+  // Median image distance between the segment midpoints of neighbouring
+  // beams (undistorted px; 0 for a single beam). A dot read as its row
+  // neighbour's moves by about this much.
+  double beamPitchPx() const { return beam_pitch_px_; }
 
 private:
   Eigen::Vector2d projectUndistorted(const Eigen::Vector3d& p) const;
@@ -143,13 +148,44 @@ private:
   int supportOf(int beam, const std::vector<int>& spot_of_beam, const std::vector<Eigen::Vector3d>& accepted_point,
                   std::vector<Eigen::Vector3d>* support) const;
   // Drops accepted pairs that disagree with the surface of their neighbours.
+  // Pairs flagged in `proven` (settled by resolveLines) are not revisited.
   void rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_px, const std::vector<char>& contested,
-                          std::vector<int>* spot_of_beam, std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point) const;
+                          const std::vector<char>& proven, std::vector<int>* spot_of_beam,
+                          std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point) const;
+
+  // Point of `beam` for an undistorted spot pixel; false when the rays are parallel.
+  bool triangulatePixel(int beam, const Eigen::Vector2d& px, Eigen::Vector3d* p) const;
+  // Smoothness cost (0..1) between the dot of `beam` at pixel `px` and a
+  // grid neighbour's point `q` (8-neighbourhood): squared distance, in units
+  // of half the beam pitch in the image, between px and where the beam would
+  // be at q's depth, capped at 1 (a depth edge costs as much as a missing
+  // dot; a dot read as its neighbour's, shifted by one pitch, costs the cap).
+  double smoothnessCost(int beam, const Eigen::Vector2d& px, const Eigen::Vector3d& q) const;
+  // Joint reading of the grid lines whose beams share an epipolar line (rows
+  // parallel to the baseline): `lines` are the candidate-graph components
+  // that lie on one grid row (or column). Each line gets a few ordered
+  // readings (order-preserving matchings along the line by dynamic
+  // programming, with depth smoothness between neighbouring beams: the best
+  // one, the best through every candidate pair, the best without each pair
+  // of the best one); the lines are chained (row r next to r + 1, smoothness
+  // over the 8-neighbourhood) and solved exactly by min-sum dynamic
+  // programming; a second round adds the readings that are best given the
+  // neighbouring lines' optimum. A pair is accepted when every reading
+  // without it costs at least ambiguity_margin more (min-marginals) and its
+  // group of dots cannot slide along the line (a free beam next to it and
+  // no smooth link to dots that cannot slide: an object in front of the
+  // rock). Accepted beams are flagged in *proven. Returns how many.
+  int resolveLines(const std::vector<std::pair<std::vector<int>, std::vector<int>>>& lines,
+                   const std::vector<Eigen::Vector2d>& spots_px, std::vector<int>* spot_of_beam,
+                   std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
+                   std::vector<char>* proven) const;
 
   CameraModel camera_;
   ProjectorCalibration projector_;
   TriangulatorOptions config_;
   std::vector<EpipolarSegment> segments_;
+  double beam_pitch_px_ = 0.0;
+  double smoothness_scale_px_ = 10.0;  // see the constructor
 };
 
 }  // namespace structured_light_stabilizer

@@ -16,6 +16,7 @@
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/projector_calibration.h"
 #include "structured_light_stabilizer/spot.h"
+#include "structured_light_stabilizer/triangulator.h"
 
 namespace sls_test
 {
@@ -162,6 +163,38 @@ inline Frame makeFrame(const CameraModel& cam, const ProjectorCalibration& proj,
   }
   std::shuffle(f.spots.begin(), f.spots.end(), rng);
   return f;
+}
+
+// Per spot: whether another spot lies within the gate of the true beam's
+// epipolar segment and within half a beam pitch of the spot along it (both
+// undistorted). Such a dot is not identifiable from geometry: the rival
+// reads as a dot of the same beam at nearly the same depth (a difference the
+// surface's relief can explain), so either may be the beam's dot; the
+// triangulator leaves the beam unassigned (or, rarely, takes the rival: a
+// wrong spot but a nearly right point). Spurious spots (beam < 0) get false.
+inline std::vector<char> ambiguousDots(const Triangulator& tri, const Spots& spots)
+{
+  std::vector<Eigen::Vector2d> px(spots.size());
+  for (size_t j = 0; j < spots.size(); ++j)
+    px[j] = tri.undistortPixel(spots[j].x, spots[j].y);
+  const double gate = tri.config().max_epipolar_distance_px;
+  std::vector<char> out(spots.size(), 0);
+  for (size_t j = 0; j < spots.size(); ++j)
+  {
+    if (spots[j].beam < 0 || !px[j].allFinite())
+      continue;
+    const EpipolarSegment& sg = tri.segments()[spots[j].beam];
+    const Eigen::Vector2d ab = sg.far_px - sg.near_px;
+    for (size_t o = 0; o < spots.size() && !out[j]; ++o)
+    {
+      if (o == j || !px[o].allFinite())
+        continue;
+      const double t = std::min(1.0, std::max(0.0, (px[o] - sg.near_px).dot(ab) / ab.squaredNorm()));
+      const double off_line = (sg.near_px + t * ab - px[o]).norm();
+      out[j] = off_line <= gate && (px[o] - px[j]).norm() <= 0.5 * tri.beamPitchPx();
+    }
+  }
+  return out;
 }
 
 // The simulator's default rig (simulator.h): baseline 0.25 m along x, 10 x 10
