@@ -126,14 +126,29 @@ struct PoseDeltaParams
   double max_edge_ratio = 3.0;
 
   // Texture tracking (pyramidal Lucas-Kanade on the red channel, dots masked).
-  int texture_max_features = 400;
+  // Spread features (windows that barely overlap) carry more independent
+  // information than dense ones, and cost less.
+  int texture_max_features = 300;
   double texture_quality = 0.005;
-  double texture_min_distance_px = 8.0;
+  double texture_min_distance_px = 20.0;
   int texture_window_px = 13;
   int texture_pyramid_levels = 3;
   double texture_dot_clearance_px = 10.0;  // features closer than this to any dot are not used
   int texture_roi_margin_px = 48;          // how far features may move (after prediction)
   int texture_min_features = 20;
+  // Final gain-and-offset sub-pixel refinement window (odd; 0 = off, plain
+  // Lucas-Kanade): natural vignetting alone changes a point's brightness by
+  // several per cent as it moves, which plain Lucas-Kanade reads as a shift.
+  int texture_refinement_window_px = 25;
+  // Features from the whole image (not only the box of the dots): their
+  // perspective flow separates in-plane translation from tilt, which the
+  // narrow box cannot. Outside the dot map a feature's depth is extrapolated
+  // from a plane through the reference points and left free in the solve.
+  bool texture_whole_image = true;
+  // 1-sigma of a feature's depth taken from the surface between the dots
+  // (interpolation error) and floor of it for extrapolated features.
+  double texture_depth_sigma_m = 0.003;
+  double texture_extrapolated_depth_sigma_m = 0.02;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;
@@ -216,10 +231,15 @@ private:
 // and, when `current_surface` is non-null, the `reference` points against it.
 // Texture constraints: reference 3D points and their observed undistorted
 // normalised coordinates in the current image (scaled by `focal_px`).
+// A feature's depth along its reference ray is an unknown of the solve when
+// depth_sigma_m > 0 (point_ref is then its prior, with this 1-sigma), fixed
+// at point_ref otherwise. Free depths let features far from the dots, whose
+// depth is only extrapolated, still separate rotation from translation.
 struct TextureConstraint
 {
   Eigen::Vector3d point_ref;
   Eigen::Vector2d observed_normalized;
+  double depth_sigma_m = 0.0;
 };
 
 struct RegistrationOutput
