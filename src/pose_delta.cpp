@@ -85,7 +85,7 @@ constexpr size_t kCoarseFeatures = 48;
 // Tukey's biweight constant (95 % efficiency on Gaussian noise), in robust sigmas.
 constexpr double kTukeyC = 4.685;
 constexpr int kMinCoarseFeatures = 12;
-constexpr int kIterationsAfterCoarseFit = 12;
+constexpr int kIterationsAfterCoarseFit = 8;
 // Prior of the geometry-only prediction (see process()).
 constexpr double kPredictionPriorM = 0.005;
 constexpr double kPredictionPriorRad = 0.005;
@@ -377,6 +377,8 @@ std::string PoseDeltaParams::validate() const
     why << "texture_refinement_window_px must be 0 (off) or odd and >= 5; ";
   if (texture_pyramid_levels < 0 || texture_pyramid_levels > 6)
     why << "texture_pyramid_levels must be in [0, 6]; ";
+  if (!(texture_error_inflation >= 1.0))
+    why << "texture_error_inflation must be at least 1; ";
   if (!(texture_depth_sigma_m >= 0.0) || !(texture_extrapolated_depth_sigma_m > 0.0))
     why << "texture depth sigmas must not be negative (the extrapolated one positive); ";
   if (texture_max_features < 0 || texture_min_features < 0)
@@ -570,6 +572,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         g.noalias() += w * row.J.transpose() * row.r;
         sum_r2 += row.r * row.r;
       }
+      const Matrix6d H_geometry = H;
       int tex_used = 0;
       eliminated.clear();
       for (size_t k = 0; k < tex_r.size(); ++k)
@@ -610,7 +613,11 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         ++tex_used;
       }
       out.features_used = tex_used;
-      H_data = H;
+      // What the solution is worth (covariance, frozen directions): the
+      // texture's errors are correlated between features, so its information
+      // is deflated; the step above weights each feature as if independent.
+      const double inflation2 = config.texture_error_inflation * config.texture_error_inflation;
+      H_data = H_geometry + (H - H_geometry) / inflation2;
       out.iterations = it;
       if (it == max_it || geo.empty() || converged)
         break;
@@ -991,7 +998,7 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
         if (tracker_->trackPyramidal(predict(initial), coarse, dots, &tracked, &ok) >= kMinCoarseFeatures)
         {
           PoseDeltaParams quick = config_;
-          quick.max_iterations = std::min(config_.max_iterations, 10);
+          quick.max_iterations = std::min(config_.max_iterations, 6);
           quick.freeze_factor = 1e9;
           const RegistrationOutput coarse_fit =
               registerToSurface(reference_->surface, reference_->points, nullptr, frame.points,

@@ -139,7 +139,7 @@ struct PoseDeltaParams
   // Final gain-and-offset sub-pixel refinement window (odd; 0 = off, plain
   // Lucas-Kanade): natural vignetting alone changes a point's brightness by
   // several per cent as it moves, which plain Lucas-Kanade reads as a shift.
-  int texture_refinement_window_px = 25;
+  int texture_refinement_window_px = 23;
   // Features from the whole image (not only the box of the dots): their
   // perspective flow separates in-plane translation from tilt, which the
   // narrow box cannot. Outside the dot map a feature's depth is extrapolated
@@ -149,6 +149,12 @@ struct PoseDeltaParams
   // (interpolation error) and floor of it for extrapolated features.
   double texture_depth_sigma_m = 0.003;
   double texture_extrapolated_depth_sigma_m = 0.02;
+  // The reported covariance takes the texture's noise this many times larger
+  // than its scatter per feature says: the errors of different features are
+  // correlated (rendering and photometry they share, depth priors from the
+  // same surface), so n features are worth less than n independent ones. On
+  // the simulator the in-plane errors are 2-2.5 times the independent sigma.
+  double texture_error_inflation = 2.5;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;
@@ -245,7 +251,7 @@ struct TextureConstraint
 struct RegistrationOutput
 {
   Eigen::Isometry3d transform = Eigen::Isometry3d::Identity();
-  Matrix6d information = Matrix6d::Zero();  // J^T W J with noise-scaled weights, no prior
+  Matrix6d information = Matrix6d::Zero();  // J^T W J with noise-scaled weights (texture deflated), no prior
   Matrix6d covariance = Matrix6d::Identity();
   double rms_geometry_m = 0.0;
   double sigma_geometry_m = 0.0;

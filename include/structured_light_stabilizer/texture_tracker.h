@@ -38,7 +38,7 @@ struct TextureTrackerConfig
   // across the image (natural vignetting falls by cos^4, exposure and sun
   // change), and plain Lucas-Kanade turns a gain change into a shift.
   bool photometric_refinement = true;
-  int refinement_window_px = 25;  // odd; larger than the LK window: the refinement is cheaper per pixel
+  int refinement_window_px = 23;  // odd; larger than the LK window: the refinement is cheaper per pixel
   int refinement_iterations = 6;
   double max_refinement_px = 1.5;  // a refinement moving further is a failure
 };

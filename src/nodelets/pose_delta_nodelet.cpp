@@ -198,6 +198,7 @@ private:
     core.texture_refinement_window_px = config.texture_refinement_window_px;
     core.texture_depth_sigma_m = config.texture_depth_sigma_m;
     core.texture_extrapolated_depth_sigma_m = config.texture_extrapolated_depth_sigma_m;
+    core.texture_error_inflation = config.texture_error_inflation;
     core.texture_pyramid_levels = config.texture_pyramid_levels;
     core.texture_dot_clearance_px = config.texture_dot_clearance_px;
     core.texture_roi_margin_px = config.texture_roi_margin_px;
