@@ -15,10 +15,11 @@
 // points by beam index. It registers the current points against a smooth
 // surface interpolated through the reference map (and the reference points
 // against the current surface), point-to-plane with robust weights; the rock's
-// own texture, tracked in the image away from the dots and lifted to 3D on
-// the reference surface, adds reprojection constraints that pin the axes a
-// smooth or flat rock leaves free (in-plane translation, roll about the view
-// axis). Both go into one Gauss-Newton problem on se(3).
+// own texture, tracked over the whole image away from the dots and lifted to
+// 3D on the reference surface (or, off the dot map, on a plane through it,
+// with the depth left free), adds reprojection constraints that pin the axes
+// a smooth or flat rock leaves free (in-plane translation, roll about the
+// view axis). Both go into one Gauss-Newton problem on se(3).
 #pragma once
 
 #include <array>

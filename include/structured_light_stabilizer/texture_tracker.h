@@ -6,11 +6,14 @@
 // weakest: red for green dots), and only inside the tracked area. Pixel
 // coordinates follow OpenCV (centres at integers), full-image coordinates in
 // and out. Features are chosen once, in the reference image, inside a given
-// region and away from the dots; each frame they are tracked with pyramidal
-// Lucas-Kanade from the reference image, starting at positions predicted by
-// the caller (the last pose estimate), so no drift accumulates. A feature is
-// dropped for the frame when it lands near a dot of the current image, because
-// the dots slide over the rock and would drag the window with them.
+// region and away from the dots; each frame they are tracked from the
+// reference image (never chained, so no drift accumulates), starting at
+// positions predicted by the caller: pyramidal Lucas-Kanade for a wide
+// capture range, and a sub-pixel refinement that fits a gain and an offset
+// per window with the shift (brightness is not constant: vignetting,
+// exposure). The dots slide over the rock and would drag a window with them:
+// window pixels near a dot (reference or current) get no weight, and a
+// feature centred near a current dot is dropped for the frame.
 #pragma once
 
 #include <algorithm>
