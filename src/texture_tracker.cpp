@@ -186,7 +186,9 @@ bool TextureTracker::refine(size_t i, const cv::Mat& image, const std::vector<fl
       s3 += a3[l];
     }
     const cv::Vec4d step = -(inverse_normal * cv::Vec4d(s0, s1, -s2, -s3));
-    const double gain = 1.0 - step[2];  // the solved gain in a T + b (a = 1 - step[2] at first order)
+    // The step is taken along the template's gradient; the image's is the
+    // gain a = 1 + step[2] times that.
+    const double gain = 1.0 + step[2];
     const double sx = step[0] / std::max(gain, 0.5), sy = step[1] / std::max(gain, 0.5);
     qx += sx;
     qy += sy;
