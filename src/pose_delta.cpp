@@ -78,6 +78,17 @@ Matrix6d adjoint(const Eigen::Isometry3d& T)
 }
 
 const char* const kAxisNames[6] = {"tx", "ty", "tz", "rx", "ry", "rz"};
+
+// Texture features tracked over the pyramid to re-predict the others, and
+// the fewest of them worth a prediction.
+constexpr size_t kCoarseFeatures = 48;
+// Tukey's biweight constant (95 % efficiency on Gaussian noise), in robust sigmas.
+constexpr double kTukeyC = 4.685;
+constexpr int kMinCoarseFeatures = 12;
+constexpr int kIterationsAfterCoarseFit = 8;
+// Prior of the geometry-only prediction (see process()).
+constexpr double kPredictionPriorM = 0.005;
+constexpr double kPredictionPriorRad = 0.005;
 }  // namespace
 
 Eigen::Matrix3d expSO3(const Eigen::Vector3d& w)
@@ -362,8 +373,14 @@ std::string PoseDeltaParams::validate() const
     why << "max_edge_ratio must exceed 1; ";
   if (texture_window_px < 5 || texture_window_px % 2 == 0)
     why << "texture_window_px must be odd and >= 5; ";
+  if (texture_refinement_window_px != 0 && (texture_refinement_window_px < 5 || texture_refinement_window_px % 2 == 0))
+    why << "texture_refinement_window_px must be 0 (off) or odd and >= 5; ";
   if (texture_pyramid_levels < 0 || texture_pyramid_levels > 6)
     why << "texture_pyramid_levels must be in [0, 6]; ";
+  if (!(texture_error_inflation >= 1.0))
+    why << "texture_error_inflation must be at least 1; ";
+  if (!(texture_depth_sigma_m >= 0.0) || !(texture_extrapolated_depth_sigma_m > 0.0))
+    why << "texture depth sigmas must not be negative (the extrapolated one positive); ";
   if (texture_max_features < 0 || texture_min_features < 0)
     why << "texture feature counts must not be negative; ";
   std::string s = why.str();
@@ -408,6 +425,27 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
   std::vector<GeoRow> geo;
   std::vector<Eigen::Matrix<double, 2, 6>> tex_J;
   std::vector<Eigen::Vector2d> tex_r;
+  std::vector<Eigen::Vector2d> tex_Jd;  // derivative of the residual by the feature's depth
+  std::vector<size_t> tex_index;        // texture constraint of each row
+  // Feature depths along their reference rays: unknowns when their prior
+  // sigma is positive, eliminated per feature (Schur complement) so the pose
+  // system stays 6x6.
+  std::vector<Eigen::Vector3d> tex_ray(texture.size());
+  std::vector<double> tex_depth0(texture.size()), tex_depth(texture.size());
+  for (size_t k = 0; k < texture.size(); ++k)
+  {
+    tex_depth0[k] = texture[k].point_ref.norm();
+    tex_ray[k] = tex_depth0[k] > 0.0 ? Eigen::Vector3d(texture[k].point_ref / tex_depth0[k]) : Eigen::Vector3d::Zero();
+  }
+  tex_depth = tex_depth0;
+  struct DepthElimination
+  {
+    size_t k;
+    Vector6d B;
+    double C;
+    double g;
+  };
+  std::vector<DepthElimination> eliminated;
   geo.reserve(current.size() + reference.size());
 
   // Scene depth: converts rotations into metres of motion at the rock.
@@ -485,9 +523,12 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
           geo.push_back(row);
         }
       }
-      for (const TextureConstraint& tc : texture)
+      tex_Jd.clear();
+      tex_index.clear();
+      for (size_t k = 0; k < texture.size(); ++k)
       {
-        const Eigen::Vector3d y = T * tc.point_ref;
+        const TextureConstraint& tc = texture[k];
+        const Eigen::Vector3d y = T * Eigen::Vector3d(tex_depth[k] * tex_ray[k]);
         if (!(y.z() > 1e-6))
           continue;
         const double iz = 1.0 / y.z();
@@ -497,6 +538,8 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         Eigen::Matrix<double, 3, 6> dy;
         dy << Eigen::Matrix3d::Identity(), -skew(y);
         tex_J.push_back(dpi * dy);
+        tex_Jd.push_back(dpi * (R * tex_ray[k]));
+        tex_index.push_back(k);
         tex_r.push_back(focal_px * (Eigen::Vector2d(y.x() * iz, y.y() * iz) - tc.observed_normalized));
       }
 
@@ -529,20 +572,52 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         g.noalias() += w * row.J.transpose() * row.r;
         sum_r2 += row.r * row.r;
       }
+      const Matrix6d H_geometry = H;
       int tex_used = 0;
+      eliminated.clear();
       for (size_t k = 0; k < tex_r.size(); ++k)
       {
         const double ar = tex_r[k].norm();
-        if (it > 2 && ar > 6.0 * kt)
-          continue;  // a feature dragged by a dot or lost: drop it outright
-        const double huber = ar <= kt ? 1.0 : kt / ar;
-        const double w = huber / (sigma_t * sigma_t);
-        H.noalias() += w * tex_J[k].transpose() * tex_J[k];
-        g.noalias() += w * tex_J[k].transpose() * tex_r[k];
+        // Huber while the pose settles, then Tukey's biweight: a feature on
+        // something that does not move with the rock (a shadow edge, the
+        // rim of the view, a dot) gets no weight at all instead of a pull
+        // that many of them would add up.
+        double robust = ar <= kt ? 1.0 : kt / ar;
+        if (it > 2)
+        {
+          const double u = ar / (kTukeyC * sigma_t);
+          if (u >= 1.0)
+            continue;
+          robust = (1.0 - u * u) * (1.0 - u * u);
+        }
+        const double w = robust / (sigma_t * sigma_t);
+        const size_t f = tex_index[k];
+        const double sd = texture[f].depth_sigma_m;
+        if (sd > 0.0)
+        {
+          // Marginalise the depth: its prior and the feature's own parallax.
+          DepthElimination e;
+          e.k = f;
+          e.B = w * tex_J[k].transpose() * tex_Jd[k];
+          e.C = w * tex_Jd[k].squaredNorm() + 1.0 / (sd * sd);
+          e.g = w * tex_Jd[k].dot(tex_r[k]) + (tex_depth[f] - tex_depth0[f]) / (sd * sd);
+          H.noalias() += w * tex_J[k].transpose() * tex_J[k] - e.B * e.B.transpose() / e.C;
+          g.noalias() += w * tex_J[k].transpose() * tex_r[k] - e.B * (e.g / e.C);
+          eliminated.push_back(e);
+        }
+        else
+        {
+          H.noalias() += w * tex_J[k].transpose() * tex_J[k];
+          g.noalias() += w * tex_J[k].transpose() * tex_r[k];
+        }
         ++tex_used;
       }
       out.features_used = tex_used;
-      H_data = H;
+      // What the solution is worth (covariance, frozen directions): the
+      // texture's errors are correlated between features, so its information
+      // is deflated; the step above weights each feature as if independent.
+      const double inflation2 = config.texture_error_inflation * config.texture_error_inflation;
+      H_data = H_geometry + (H - H_geometry) / inflation2;
       out.iterations = it;
       if (it == max_it || geo.empty() || converged)
         break;
@@ -563,8 +638,10 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
       if (!delta.allFinite())
         break;
       T = applyIncrement(delta, T);
+      for (const DepthElimination& e : eliminated)
+        tex_depth[e.k] -= (e.g + e.B.dot(delta)) / e.C;
       // Once settled, one more pass evaluates residuals and information at the solution.
-      converged = delta.head<3>().norm() < 1e-7 && delta.tail<3>().norm() < 1e-8;  // 0.1 um, 0.01 urad
+      converged = delta.head<3>().norm() < 1e-6 && delta.tail<3>().norm() < 5e-7;  // 1 um, 0.5 urad: far below the noise
     }
     if (phase == 1)
       break;
@@ -593,6 +670,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
       break;
     V = kept;
     T = initial;
+    tex_depth = tex_depth0;
   }
   out.transform = T;
   out.information = H_data;
@@ -617,6 +695,7 @@ struct PoseDeltaEstimator::Frame
   std::vector<Eigen::Vector3d> points;
   BeamSurface surface;
   std::vector<Eigen::Vector3d> features_3d;  // texture features lifted onto the surface (reference frame)
+  std::vector<double> features_sigma;        // 1-sigma of each feature's depth (0 = fixed)
   bool has_image = false;
 };
 
@@ -652,6 +731,7 @@ void PoseDeltaEstimator::setCamera(const CameraModel& camera)
   {
     tracker_->clear();
     reference_->features_3d.clear();
+    reference_->features_sigma.clear();
   }
 }
 
@@ -728,23 +808,57 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
     tc.pyramid_levels = config_.texture_pyramid_levels;
     tc.dot_clearance_px = config_.texture_dot_clearance_px;
     tc.roi_margin_px = config_.texture_roi_margin_px;
+    tc.photometric_refinement = config_.texture_refinement_window_px > 0;
+    tc.refinement_window_px = std::max(config_.texture_refinement_window_px, 3);
     *tracker_ = TextureTracker(tc);
-    // Features only where the dot map gives depth: the box of the dots.
+    // Features where the dot map gives depth (the box of the dots) or, by
+    // default, anywhere in the image: off the map their depth comes from a
+    // plane through the reference points and stays an unknown of the solve.
     const std::vector<cv::Point2f> dots = projectAll(camera_, frame.points);
     if (!dots.empty())
     {
-      const cv::Rect region = cv::boundingRect(dots);
+      const cv::Rect region = config_.texture_whole_image ? cv::Rect(0, 0, frame.image.cols, frame.image.rows)
+                                                          : cv::boundingRect(dots);
       tracker_->setReference(frame.image, frame.texture_channel, region, dots);
+      // Least-squares plane of the reference points, and their scatter about it.
+      Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+      int n = 0;
+      for (const Eigen::Vector3d& p : frame.points)
+        if (usable(p))
+        {
+          centre += p;
+          ++n;
+        }
+      centre /= std::max(n, 1);
+      Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+      for (const Eigen::Vector3d& p : frame.points)
+        if (usable(p))
+          scatter += (p - centre) * (p - centre).transpose();
+      const Eigen::JacobiSVD<Eigen::Matrix3d> plane(scatter, Eigen::ComputeFullU);
+      const Eigen::Vector3d normal = plane.matrixU().col(2);
+      const double plane_rms = std::sqrt(plane.singularValues()[2] / std::max(n, 1));
+      const double outside_sigma = std::max(config_.texture_extrapolated_depth_sigma_m, 3.0 * plane_rms);
       std::vector<uint8_t> keep(tracker_->features().size(), 0);
       for (size_t k = 0; k < keep.size(); ++k)
       {
         Eigen::Vector2d uv(kNaN, kNaN);
         Eigen::Vector3d X;
         const cv::Point2f& f = tracker_->features()[k];
-        if (ref->surface.intersectRay(camera_.ray(cv::Point2d(f.x, f.y)), &uv, &X))
+        const Eigen::Vector3d ray = camera_.ray(cv::Point2d(f.x, f.y)).normalized();
+        if (ref->surface.intersectRay(ray, &uv, &X))
         {
           keep[k] = 1;
           ref->features_3d.push_back(X);
+          ref->features_sigma.push_back(config_.texture_depth_sigma_m);
+          continue;
+        }
+        const double along = normal.dot(ray);
+        const double depth = std::abs(along) > 0.2 ? normal.dot(centre) / along : -1.0;
+        if (config_.texture_whole_image && config_.texture_depth_sigma_m > 0.0 && depth > 0.0)
+        {
+          keep[k] = 1;
+          ref->features_3d.push_back(depth * ray);
+          ref->features_sigma.push_back(outside_sigma);
         }
       }
       tracker_->retain(keep);
@@ -815,6 +929,7 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   Eigen::Isometry3d initial = last_estimate_;
   std::vector<TextureConstraint> texture;
   std::string texture_note;
+  bool texture_predicted = false;  // `initial` comes from the coarse texture fit
   const bool texture_wanted = config_.use_texture;
   if (texture_wanted)
   {
@@ -832,37 +947,87 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
     {
       // Geometry first: on a rough rock it places the features to within a
       // pixel or two, on any surface it fixes distance and tilts.
-      // Only a prediction: one direction, a few iterations, no second phase.
+      // Only a prediction: one direction, a few iterations, no second phase;
+      // a firm prior keeps the axes a smooth surface leaves free near the
+      // last estimate (with the weak one they wander by degrees on noise).
       PoseDeltaParams quick = config_;
       quick.max_iterations = std::min(config_.max_iterations, 6);
       quick.freeze_factor = 1e9;
+      quick.prior_sigma_translation_m = std::min(config_.prior_sigma_translation_m, kPredictionPriorM);
+      quick.prior_sigma_rotation_rad = std::min(config_.prior_sigma_rotation_rad, kPredictionPriorRad);
       const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,
                                                        frame.points, {}, 1.0, initial, quick);
       if (geo.points_used >= config_.min_points && geo.transform.matrix().allFinite())
         initial = geo.transform;
       const std::vector<Eigen::Vector3d>& X = reference_->features_3d;
-      std::vector<cv::Point2f> predicted(X.size());
-      for (size_t k = 0; k < X.size(); ++k)
+      const std::vector<double>& Xs = reference_->features_sigma;
+      auto predict = [&](const Eigen::Isometry3d& T)
       {
-        const cv::Point2d p = camera_.project(initial * X[k]);
-        predicted[k] = cv::Point2f(static_cast<float>(p.x), static_cast<float>(p.y));
-      }
-      std::vector<cv::Point2f> tracked;
-      std::vector<uint8_t> ok;
-      const int n = tracker_->track(frame.image, frame.texture_channel, predicted, projectAll(camera_, frame.points),
-                                    &tracked, &ok);
-      if (n < config_.texture_min_features)
-        texture_note = "only " + std::to_string(n) + " texture features tracked";
-      else
+        std::vector<cv::Point2f> px(X.size());
+        for (size_t k = 0; k < X.size(); ++k)
+        {
+          const cv::Point2d p = camera_.project(T * X[k]);
+          px[k] = cv::Point2f(static_cast<float>(p.x), static_cast<float>(p.y));
+        }
+        return px;
+      };
+      auto constraints = [&](const std::vector<cv::Point2f>& tracked, const std::vector<uint8_t>& ok)
+      {
+        std::vector<TextureConstraint> c;
         for (size_t k = 0; k < X.size(); ++k)
           if (ok[k])
-            texture.push_back({X[k], camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y))});
+            c.push_back({X[k], camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y)), Xs[k]});
+        return c;
+      };
+      const std::vector<cv::Point2f> dots = projectAll(camera_, frame.points);
+      std::vector<cv::Point2f> tracked;
+      std::vector<uint8_t> ok;
+      int n = 0;
+      if (!tracker_->setFrame(frame.image, frame.texture_channel))
+        texture_note = "image unusable for tracking";
+      else if (config_.texture_refinement_window_px > 0)
+      {
+        // A few features tracked over the pyramid (wide capture range) fix
+        // the in-plane axes well enough to predict every feature to a
+        // fraction of a pixel; the gain-and-offset refinement from there is
+        // the measurement, and costs a fraction of pyramidal tracking.
+        const size_t stride = std::max<size_t>(1, X.size() / kCoarseFeatures);
+        std::vector<uint8_t> coarse(X.size(), 0);
+        for (size_t k = 0; k < X.size(); k += stride)
+          coarse[k] = 1;
+        if (tracker_->trackPyramidal(predict(initial), coarse, dots, &tracked, &ok) >= kMinCoarseFeatures)
+        {
+          PoseDeltaParams quick = config_;
+          quick.max_iterations = std::min(config_.max_iterations, 6);
+          quick.freeze_factor = 1e9;
+          const RegistrationOutput coarse_fit =
+              registerToSurface(reference_->surface, reference_->points, nullptr, frame.points,
+                                constraints(tracked, ok), camera_.fx, initial, quick);
+          if (coarse_fit.points_used >= config_.min_points && coarse_fit.transform.matrix().allFinite())
+          {
+            initial = coarse_fit.transform;
+            texture_predicted = true;
+          }
+        }
+        n = tracker_->refineAll(predict(initial), dots, &tracked, &ok);
+      }
+      else
+        n = tracker_->trackPyramidal(predict(initial), {}, dots, &tracked, &ok);
+      if (texture_note.empty() && n < config_.texture_min_features)
+        texture_note = "only " + std::to_string(n) + " texture features tracked";
+      else if (texture_note.empty())
+        texture = constraints(tracked, ok);
     }
   }
 
+  // From the texture's coarse fit the solve settles in a few iterations;
+  // beyond that the robust weights of a few marginal features only flip.
+  PoseDeltaParams solve = config_;
+  if (texture_predicted)
+    solve.max_iterations = std::min(config_.max_iterations, kIterationsAfterCoarseFit);
   const RegistrationOutput reg =
       registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
-                        frame.points, texture, has_camera_ ? camera_.fx : 1.0, initial, config_);
+                        frame.points, texture, has_camera_ ? camera_.fx : 1.0, initial, solve);
   result.points_used = reg.points_used;
   result.features_used = reg.features_used;
   result.iterations = reg.iterations;

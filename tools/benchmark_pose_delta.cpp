@@ -27,10 +27,13 @@ int main(int argc, char** argv)
     const char* name;
     double relief_m;
     bool use_texture;
+    PoseDeltaMode mode;
   };
-  const Case cases[] = {{"rough rock 0.15 m, texture on ", 0.15, true},
-                        {"rough rock 0.15 m, texture off", 0.15, false},
-                        {"flat board, texture on        ", 0.0, true}};
+  const Case cases[] = {{"rough rock 0.15 m, texture on ", 0.15, true, PoseDeltaMode::kReference},
+                        {"rough rock 0.15 m, texture off", 0.15, false, PoseDeltaMode::kReference},
+                        {"flat board, texture on        ", 0.0, true, PoseDeltaMode::kReference},
+                        // Every valid frame becomes the reference (features chosen anew).
+                        {"rough rock, frame_to_frame    ", 0.15, true, PoseDeltaMode::kFrameToFrame}};
   for (const Case& c : cases)
   {
     SimulatorConfig sc;
@@ -51,6 +54,7 @@ int main(int argc, char** argv)
     }
     PoseDeltaParams cfg;
     cfg.use_texture = c.use_texture;
+    cfg.mode = c.mode;
     PoseDeltaEstimator est(cfg);
     est.setCamera(sim.camera());
 

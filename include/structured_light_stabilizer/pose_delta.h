@@ -15,10 +15,11 @@
 // points by beam index. It registers the current points against a smooth
 // surface interpolated through the reference map (and the reference points
 // against the current surface), point-to-plane with robust weights; the rock's
-// own texture, tracked in the image away from the dots and lifted to 3D on
-// the reference surface, adds reprojection constraints that pin the axes a
-// smooth or flat rock leaves free (in-plane translation, roll about the view
-// axis). Both go into one Gauss-Newton problem on se(3).
+// own texture, tracked over the whole image away from the dots and lifted to
+// 3D on the reference surface (or, off the dot map, on a plane through it,
+// with the depth left free), adds reprojection constraints that pin the axes
+// a smooth or flat rock leaves free (in-plane translation, roll about the
+// view axis). Both go into one Gauss-Newton problem on se(3).
 #pragma once
 
 #include <array>
@@ -126,14 +127,35 @@ struct PoseDeltaParams
   double max_edge_ratio = 3.0;
 
   // Texture tracking (pyramidal Lucas-Kanade on the red channel, dots masked).
-  int texture_max_features = 400;
+  // Spread features (windows that barely overlap) carry more independent
+  // information than dense ones, and cost less.
+  int texture_max_features = 300;
   double texture_quality = 0.005;
-  double texture_min_distance_px = 8.0;
+  double texture_min_distance_px = 20.0;
   int texture_window_px = 13;
   int texture_pyramid_levels = 3;
   double texture_dot_clearance_px = 10.0;  // features closer than this to any dot are not used
   int texture_roi_margin_px = 48;          // how far features may move (after prediction)
   int texture_min_features = 20;
+  // Final gain-and-offset sub-pixel refinement window (odd; 0 = off, plain
+  // Lucas-Kanade): natural vignetting alone changes a point's brightness by
+  // several per cent as it moves, which plain Lucas-Kanade reads as a shift.
+  int texture_refinement_window_px = 23;
+  // Features from the whole image (not only the box of the dots): their
+  // perspective flow separates in-plane translation from tilt, which the
+  // narrow box cannot. Outside the dot map a feature's depth is extrapolated
+  // from a plane through the reference points and left free in the solve.
+  bool texture_whole_image = true;
+  // 1-sigma of a feature's depth taken from the surface between the dots
+  // (interpolation error) and floor of it for extrapolated features.
+  double texture_depth_sigma_m = 0.003;
+  double texture_extrapolated_depth_sigma_m = 0.02;
+  // The reported covariance takes the texture's noise this many times larger
+  // than its scatter per feature says: the errors of different features are
+  // correlated (rendering and photometry they share, depth priors from the
+  // same surface), so n features are worth less than n independent ones. On
+  // the simulator the in-plane errors are 2-2.5 times the independent sigma.
+  double texture_error_inflation = 2.5;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;
@@ -216,16 +238,21 @@ private:
 // and, when `current_surface` is non-null, the `reference` points against it.
 // Texture constraints: reference 3D points and their observed undistorted
 // normalised coordinates in the current image (scaled by `focal_px`).
+// A feature's depth along its reference ray is an unknown of the solve when
+// depth_sigma_m > 0 (point_ref is then its prior, with this 1-sigma), fixed
+// at point_ref otherwise. Free depths let features far from the dots, whose
+// depth is only extrapolated, still separate rotation from translation.
 struct TextureConstraint
 {
   Eigen::Vector3d point_ref;
   Eigen::Vector2d observed_normalized;
+  double depth_sigma_m = 0.0;
 };
 
 struct RegistrationOutput
 {
   Eigen::Isometry3d transform = Eigen::Isometry3d::Identity();
-  Matrix6d information = Matrix6d::Zero();  // J^T W J with noise-scaled weights, no prior
+  Matrix6d information = Matrix6d::Zero();  // J^T W J with noise-scaled weights (texture deflated), no prior
   Matrix6d covariance = Matrix6d::Identity();
   double rms_geometry_m = 0.0;
   double sigma_geometry_m = 0.0;

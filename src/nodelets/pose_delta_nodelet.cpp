@@ -150,6 +150,18 @@ private:
                    config.texture_window_px + 1);
       config.texture_window_px += 1;
     }
+    if (config.texture_refinement_window_px != 0 && config.texture_refinement_window_px % 2 == 0)
+    {
+      NODELET_WARN("PoseDelta: texture_refinement_window_px must be odd (or 0 = off); %d -> %d",
+                   config.texture_refinement_window_px, config.texture_refinement_window_px + 1);
+      config.texture_refinement_window_px += 1;
+    }
+    if (config.texture_refinement_window_px != 0 && config.texture_refinement_window_px < 5)
+    {
+      NODELET_WARN("PoseDelta: texture_refinement_window_px %d is below 5; using 5 (0 turns it off)",
+                   config.texture_refinement_window_px);
+      config.texture_refinement_window_px = 5;
+    }
     if (config.texture_min_features > config.texture_max_features)
     {
       NODELET_WARN("PoseDelta: texture_min_features %d > texture_max_features %d; using %d",
@@ -180,7 +192,13 @@ private:
     core.max_rms_residual_m = config.max_rms_residual_m;
     core.texture_max_features = config.texture_max_features;
     core.texture_min_features = config.texture_min_features;
+    core.texture_min_distance_px = config.texture_min_distance_px;
+    core.texture_whole_image = config.texture_whole_image;
     core.texture_window_px = config.texture_window_px;
+    core.texture_refinement_window_px = config.texture_refinement_window_px;
+    core.texture_depth_sigma_m = config.texture_depth_sigma_m;
+    core.texture_extrapolated_depth_sigma_m = config.texture_extrapolated_depth_sigma_m;
+    core.texture_error_inflation = config.texture_error_inflation;
     core.texture_pyramid_levels = config.texture_pyramid_levels;
     core.texture_dot_clearance_px = config.texture_dot_clearance_px;
     core.texture_roi_margin_px = config.texture_roi_margin_px;

@@ -36,17 +36,20 @@ class PoseDeltaSim(unittest.TestCase):
         est_sub = rospy.Subscriber("pose_delta", PoseDelta, cls._on_est, queue_size=50)
         gt_sub = rospy.Subscriber("sim/ground_truth/pose_delta", PoseDelta, cls._on_gt, queue_size=50)
         # The reference must be a frame whose ground truth this checker has:
-        # once both subscriptions are connected, ask for a lock; the first
-        # identity estimate after it is the new reference frame.
+        # once both subscriptions are connected, ask for a lock; the last
+        # identity estimate from then on is the new reference frame. The mark
+        # is taken before the request: the locked frame's estimate can arrive
+        # before the service call returns (taking it after the call assumed a
+        # wrong reference now and then: a constant 5 mm / 0.6 deg offset).
         deadline = time.time() + 30.0
         while time.time() < deadline and (est_sub.get_num_connections() == 0 or gt_sub.get_num_connections() == 0):
             time.sleep(0.1)
         rospy.wait_for_service("pose_delta/lock", 30.0)
         lock = rospy.ServiceProxy("pose_delta/lock", Trigger)
-        while time.time() < deadline and not lock().success:
-            time.sleep(0.2)
         with cls.lock:
             mark = len(cls.est)
+        while time.time() < deadline and not lock().success:
+            time.sleep(0.2)
         deadline = time.time() + 70.0
         while time.time() < deadline:
             with cls.lock:
@@ -56,7 +59,9 @@ class PoseDeltaSim(unittest.TestCase):
         time.sleep(0.5)
         with cls.lock:
             after = cls.est[mark:]
-            first = next((i for i, e in enumerate(after) if is_identity(e.transform)), 0)
+            locks = [i for i, e in enumerate(after) if is_identity(e.transform)]
+            # No identity estimate: no lock seen, and no pairs (errors() fails and says so).
+            first = locks[-1] if locks else len(after)
             cls.pairs = [(e, cls.gt[e.header.stamp]) for e in after[first:] if e.header.stamp in cls.gt]
 
     @classmethod
@@ -70,7 +75,8 @@ class PoseDeltaSim(unittest.TestCase):
             cls.gt[msg.header.stamp] = msg
 
     def errors(self):
-        self.assertGreater(len(self.pairs), 20, "too few pose_delta messages matched the ground truth")
+        self.assertGreater(len(self.pairs), 20, "too few pose_delta messages after the lock matched the ground truth "
+                           "(or no locked frame, an identity estimate, was seen)")
         gt_lock_inv = np.linalg.inv(transform_matrix(self.pairs[0][1].transform))
         out = []
         for est, gt in self.pairs[1:]:
@@ -94,11 +100,7 @@ class PoseDeltaSim(unittest.TestCase):
             if not e[2]:
                 print("  invalid: %s" % e[3])
         self.assertGreater(motion_t, 3.0, "the rig did not move: the test would prove nothing")
-        # The PoseDelta issue asks for 1.0 mm RMS. Measured 0.81-1.15 mm from run
-        # to run (it depends on the lock frame; texture tracking limits the
-        # in-plane axes). This bound guards against regressions; the issue's
-        # bound is not reliably met and the issue stays open.
-        self.assertLess(t_rms, 1.25)
+        self.assertLess(t_rms, 1.0)
         self.assertLess(r_rms, 0.05)
         self.assertGreaterEqual(valid, 95.0)
 
