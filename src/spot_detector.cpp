@@ -944,7 +944,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     prev_end = row_end;
     i = row_end;
   }
-  std::vector<int> blob_of(n, -1);
+  std::vector<int> blob_of(n, -1), run_blob(n);
   std::vector<Blob> blobs;
   for (int i = 0; i < n; ++i)
   {
@@ -954,6 +954,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
       blob_of[r] = static_cast<int>(blobs.size());
       blobs.emplace_back();
     }
+    run_blob[i] = blob_of[r];
     Blob& b = blobs[blob_of[r]];
     const Run& run = runs_[i];
     const uint8_t* row = image.ptr<uint8_t>(run.y);
@@ -986,17 +987,20 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     int count;
     int x0, y0, x1, y1;
     int peak_x = -1, peak_y = -1;  // strongest pixel (full-resolution blobs)
+    int blob = -1;                 // index in blobs (full-resolution candidates)
+    bool seed = false;             // a further local maximum of a blob (see nextSeed)
   };
   std::vector<Candidate> candidates;
-  for (const Blob& b : blobs)
+  for (size_t k = 0; k < blobs.size(); ++k)
   {
+    const Blob& b = blobs[k];
     if (b.count < p.min_pixels || (!mono && b.peak < p.min_peak) || !(b.sum > 0))
       continue;  // noise: not worth a line in the debug output
     // First guess of sigma from the candidate area: a Gaussian exceeds a
     // threshold within ~2 sigma of its centre for typical peak/threshold ratios.
     const double radius = 0.5 * std::max(b.x1 - b.x0 + 1, b.y1 - b.y0 + 1);
     candidates.push_back({b.sx / b.sum, b.sy / b.sum, std::min(std::max(0.5 * radius, 1.0), p.max_sigma_px),
-                          b.count, b.x0, b.y0, b.x1, b.y1, b.peak_x, b.peak_y});
+                          b.count, b.x0, b.y0, b.x1, b.y1, b.peak_x, b.peak_y, static_cast<int>(k)});
   }
   if (coarse)
   {
@@ -1051,7 +1055,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
         const double cx = (sx / sum + 0.5) * kBin - 0.5, cy = (sy / sum + 0.5) * kBin - 0.5;
         const double extent = kBin * std::max(x1 - x0 + 1, y1 - y0 + 1);
         candidates.push_back({cx, cy, std::min(std::max(0.25 * extent, 1.5), p.max_sigma_px), area * kBin * kBin,
-                              (x0 - 1) * kBin, (y0 - 1) * kBin, (x1 + 2) * kBin, (y1 + 2) * kBin, -1, -1});
+                              (x0 - 1) * kBin, (y0 - 1) * kBin, (x1 + 2) * kBin, (y1 + 2) * kBin, -1, -1, -1});
       }
     }
     if (debug)
@@ -1065,8 +1069,82 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     if (debug)
       debug->rejected.push_back({x, y, why});
   };
-  for (const Candidate& b : candidates)
+  // A blob can hold several dots: sunlit rock whose green/red ratio is above
+  // red_weight bridges neighbours (at full sun on bright rock the greenness
+  // between two dots 35 px apart stays above detect_threshold). Each dot
+  // refined in a blob explains a disc of 3 sigma; a blob larger than what it
+  // explains is searched for the strongest local maximum of the greenness
+  // outside the discs, which becomes a candidate of its own.
+  std::vector<int> run_start, run_list;
+  std::vector<std::vector<cv::Vec3d>> explained;  // per blob: x, y, radius
+  const bool split = !mono;
+  if (split)
   {
+    run_start.assign(blobs.size() + 1, 0);
+    for (int i = 0; i < n; ++i)
+      ++run_start[run_blob[i] + 1];
+    for (size_t k = 0; k < blobs.size(); ++k)
+      run_start[k + 1] += run_start[k];
+    run_list.resize(n);
+    std::vector<int> fill(run_start.begin(), run_start.end() - 1);
+    for (int i = 0; i < n; ++i)
+      run_list[fill[run_blob[i]]++] = i;
+    explained.resize(blobs.size());
+  }
+  auto greennessAt = [&](int x, int y) {
+    return x < 0 || y < 0 || x >= image.cols || y >= image.rows
+               ? -1
+               : greenness(image.ptr<uint8_t>(y) + x * L.step, L, k256);
+  };
+  // The next seed of blob k (false when none), after a dot refined at (x, y)
+  // with sigma s.
+  auto nextSeed = [&](const Candidate& c, double x, double y, double s, Candidate* seed) {
+    std::vector<cv::Vec3d>& disc = explained[c.blob];
+    disc.emplace_back(x, y, std::max(3.0 * s, 4.0) + 1.0);
+    const Blob& b = blobs[c.blob];
+    // Small blobs are one dot (a cheap early out for nearly every blob).
+    if (std::max(b.x1 - b.x0, b.y1 - b.y0) + 1 <= 2 * disc.back()[2] || disc.size() > 8)
+      return false;
+    int best = p.min_peak - 1, bx = -1, by = -1;
+    for (int ri = run_start[c.blob]; ri < run_start[c.blob + 1]; ++ri)
+    {
+      const Run& run = runs_[run_list[ri]];
+      for (int px = run.x0; px <= run.x1; ++px)
+      {
+        bool inside = false;
+        for (const cv::Vec3d& d : disc)
+          inside = inside || (px - d[0]) * (px - d[0]) + (run.y - d[1]) * (run.y - d[1]) < d[2] * d[2];
+        if (inside)
+          continue;
+        const int g = greennessAt(px, run.y);
+        if (g <= best)
+          continue;
+        bool local_max = true;
+        for (int dy = -1; dy <= 1 && local_max; ++dy)
+          for (int dx = -1; dx <= 1 && local_max; ++dx)
+            local_max = (dx == 0 && dy == 0) || greennessAt(px + dx, run.y + dy) <= g;
+        if (local_max)
+        {
+          best = g;
+          bx = px;
+          by = run.y;
+        }
+      }
+    }
+    if (bx < 0)
+      return false;
+    *seed = c;
+    seed->x = bx;
+    seed->y = by;
+    seed->sigma0 = std::min(std::max(s, 1.0), p.max_sigma_px);
+    seed->peak_x = bx;
+    seed->peak_y = by;
+    seed->seed = true;
+    return true;
+  };
+  for (size_t ci = 0; ci < candidates.size(); ++ci)
+  {
+    const Candidate b = candidates[ci];  // a copy: new seeds grow the vector
     const double bx = b.x, by = b.y, sigma0 = b.sigma0;
     Refined r;
     const int red_ch = mono || !p.subtract_rock_texture ? -1 : L.r;
@@ -1087,6 +1165,23 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
         r.on_pedestal = true;
         ok = true;
       }
+    }
+    if (split && b.blob >= 0)
+    {
+      // A seed on a dot's pedestal (a mineral, a bright rock bridge) can
+      // climb to a dot of its blob already refined: that one stands.
+      bool again = false;
+      for (const cv::Vec3d& d : explained[b.blob])
+        again = again || (b.seed && ok && std::hypot(r.x - d[0], r.y - d[1]) < d[2]);
+      // A fit out of the sigma range explains no more than its seed pixel.
+      const bool fits = ok && !again && r.sigma >= p.min_sigma_px && r.sigma <= p.max_sigma_px;
+      const int px = b.peak_x >= 0 ? b.peak_x : static_cast<int>(std::lround(bx));
+      const int py = b.peak_y >= 0 ? b.peak_y : static_cast<int>(std::lround(by));
+      Candidate seed;
+      if (fits ? nextSeed(b, r.x, r.y, r.sigma, &seed) : nextSeed(b, px, py, 1.5, &seed))
+        candidates.push_back(seed);
+      if (again)
+        continue;
     }
     if (!ok)
     {
