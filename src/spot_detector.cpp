@@ -1105,6 +1105,21 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     // Small blobs are one dot (a cheap early out for nearly every blob).
     if (std::max(b.x1 - b.x0, b.y1 - b.y0) + 1 <= 2 * disc.back()[2] || disc.size() > 8)
       return false;
+    // A dot stands out of the blob around it: the median greenness on a ring
+    // of 2 sigma (the frame's dots share a size) is at most half its peak.
+    // Noise maxima on a bright rock bridge and points on a dot's flank do not
+    // (a flank has the dot on one side of its ring); each would cost a
+    // refinement that leads nowhere or back to a dot already found.
+    const int R = std::max(2, static_cast<int>(std::lround(2.0 * s)));
+    const int Rd = static_cast<int>(std::lround(R * M_SQRT1_2));
+    const int ring_dx[8] = {R, -R, 0, 0, Rd, Rd, -Rd, -Rd}, ring_dy[8] = {0, 0, R, -R, Rd, -Rd, Rd, -Rd};
+    auto prominent = [&](int x, int y, int g) {
+      int v[8];
+      for (int k = 0; k < 8; ++k)
+        v[k] = std::max(0, greennessAt(x + ring_dx[k], y + ring_dy[k]));
+      std::sort(v, v + 8);
+      return 2 * g - (v[3] + v[4]) >= 2 * std::max(p.min_peak, g / 2);
+    };
     int best = p.min_peak - 1, bx = -1, by = -1;
     for (int ri = run_start[c.blob]; ri < run_start[c.blob + 1]; ++ri)
     {
@@ -1123,7 +1138,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
         for (int dy = -1; dy <= 1 && local_max; ++dy)
           for (int dx = -1; dx <= 1 && local_max; ++dx)
             local_max = (dx == 0 && dy == 0) || greennessAt(px + dx, run.y + dy) <= g;
-        if (local_max)
+        if (local_max && prominent(px, run.y, g))
         {
           best = g;
           bx = px;
