@@ -215,6 +215,10 @@ private:
   std::vector<uint16_t> column_sums_;
   std::vector<Run> runs_;
   std::vector<int> parent_;
+  // Blob splitting: blob of each run, runs grouped by blob, and the discs
+  // already explained in each blob.
+  std::vector<int> run_blob_, run_start_, run_list_;
+  std::vector<std::vector<cv::Vec3d>> explained_;
 };
 
 // The study's row sort (§2.4.3): repeatedly take the `cols` spots closest to
