@@ -11,7 +11,8 @@
 //    (formulas 2.31-2.32) -> row sort (the top `cols` centroids form a row,
 //    sorted by x; repeat), which numbers the beams.
 //  - kFast (default): one SIMD pass thresholds the greenness g - max(k r, b) in
-//    the raw frame, runs are grouped into blobs, and each blob is refined in a
+//    the raw frame, runs are grouped into blobs (one candidate per dot when
+//    bright greenish rock bridges several), and each is refined in a
 //    fixed window on the background-subtracted green channel with an
 //    iteratively Gaussian-weighted centroid (the star-tracker way), so mask
 //    edge pixels flickering in and out no longer move the centroid. Beams are
@@ -123,7 +124,9 @@ struct SpotDetectorParams
   // ratio, up to incidence and shading); a speck or a mineral is a
   // reflectance patch, whose size and energy follow its own area and
   // reflectance. Hard bounds, relative to the frame's medians: sigma below
-  // min_sigma_fraction or above max_sigma_factor (specks, mineral patches),
+  // min_sigma_fraction (unless the long axis keeps at least halfway from
+  // there to the median: a dot foreshortened by a slope, while a speck is
+  // small both ways) or above max_sigma_factor (specks, mineral patches),
   // peak contrast over the background above max_contrast_factor (sunlit green
   // minerals), energy below min_energy_fraction (a patch the projector does
   // not light). Joint bound: a spot whose sigma is outside
@@ -215,6 +218,10 @@ private:
   std::vector<uint16_t> column_sums_;
   std::vector<Run> runs_;
   std::vector<int> parent_;
+  // Blob splitting: blob of each run, runs grouped by blob, and the discs
+  // already explained in each blob.
+  std::vector<int> run_blob_, run_start_, run_list_;
+  std::vector<std::vector<cv::Vec3d>> explained_;
 };
 
 // The study's row sort (§2.4.3): repeatedly take the `cols` spots closest to

@@ -8,6 +8,7 @@
 // of the study. The bounded cases therefore scale the dot power with sigma^2
 // to keep the peak SNR at the study's worst case or better; the same-power
 // wide dots are measured and reported separately.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -125,31 +126,107 @@ TEST(SpotDetectorSim, AccuracyAgainstTruth)
   EXPECT_LE(fast_wide.falsePerFrame(), 0.1);
 }
 
+namespace
+{
+// Peak SNR of each dot in the study's sense (formula 2.26: the dot's signal
+// over the noise of the background it sits on), from the simulator's truth:
+// the noise-free dot peak (SimFrame::peak_dn, green) over the sensor noise of
+// the noise-free local background (median green of SimFrame::linear on a
+// ring of radius 4 sigma + 2 px, outside the dot).
+double dotSnr(const SimFrame& f, const SensorConfig& sc, size_t b)
+{
+  const cv::Point2d p = f.pixels[b];
+  const double radius = 4.0 * f.blur_sigma_px[b] + 2.0;
+  std::vector<float> ring;
+  for (int k = 0; k < 64; ++k)
+  {
+    const int x = static_cast<int>(std::lround(p.x + radius * std::cos(k * M_PI / 32)));
+    const int y = static_cast<int>(std::lround(p.y + radius * std::sin(k * M_PI / 32)));
+    if (x >= 0 && y >= 0 && x < f.linear.cols && y < f.linear.rows)
+      ring.push_back(f.linear.at<cv::Vec3f>(y, x)[1]);
+  }
+  std::nth_element(ring.begin(), ring.begin() + ring.size() / 2, ring.end());
+  const double background = ring.empty() ? 0.0 : ring[ring.size() / 2];
+  return f.peak_dn[b] / std::sqrt(sc.read_noise_dn * sc.read_noise_dn + sc.gain_dn_per_electron * background);
+}
+
+// The same SNR for the study's worst case in this simulator: the design dot
+// (2 mrad beam at 1.5 m, normal incidence, on the optical axis) at the
+// study's dot/sun ratio, on rock of albedo 5 % (red; green is 0.55 of it in
+// the simulator's rock) facing the full sun (sun_level 1). About 47: the
+// simulator's gain puts more electrons behind a DN than the study's 2.26
+// (SNR 32); the dot/sun ratio, which decides detection, is the study's.
+double worstCaseSnr(const Simulator& sim)
+{
+  const SimulatorConfig defaults;
+  const SensorConfig& sc = sim.config().sensor;
+  const double beam_px = LightingConfig::kReferenceBeamSigmaRad * sc.camera.fx;
+  const double defocus_px = sim.diameterOfConfusion(LightingConfig::kReferenceDistanceM) / 4.0 / sc.pixel_size_m;
+  const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
+  const double diffraction_px = 0.42 * sim.config().projector.wavelength_nm * 1e-9 * image_dist /
+                                sc.aperture_diameter_m / sc.pixel_size_m;
+  const double var = beam_px * beam_px + defocus_px * defocus_px + diffraction_px * diffraction_px + 1.0 / 12.0;
+  const double background = LightingConfig::kSunFullScaleDn * 0.05 * 0.55;
+  const double peak = defaults.lighting.dot_to_sun_ratio * background * beam_px * beam_px / var;
+  return peak / std::sqrt(sc.read_noise_dn * sc.read_noise_dn + sc.gain_dn_per_electron * background);
+}
+}  // namespace
+
 // The false-spot bound over more frames than the test above (16 frames can
 // only show 0, 1, 2... false spots): sunlit frames only, since clutter is
-// sunlit reflectance and vanishes at night, with seeds not used to set the
-// detector's thresholds. Fast method only.
+// sunlit reflectance and vanishes at night. Fast method only.
+//
+// Recall: the issue's bounds hold "at the study's worst SNR case and
+// better". Sunlit slopes turned from the projector (cos of the incidence),
+// the lens's cos^4 vignetting towards the corners and dark rock put many
+// dots of the "worst SNR" condition below that case (peak SNR 25-47, against
+// 47 for the study's worst case, worstCaseSnr()), so recall is bounded at
+// 99.5 % over the dots whose peak SNR (dotSnr(), from the simulator's truth)
+// is at or above the study's worst case, and reported, with a loose bound,
+// over all visible dots and over those below it.
 TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
 {
   SpotDetector fast;
-  Score s;
+  Score s, in_scope, below;
+  double worst_snr = 0, min_snr = 1e9;
   uint32_t seed = 50000;
   for (int rep = 0; rep < 3; ++rep)
     for (double beam : {0.0014, 0.002, 0.0028, 0.0038})
       for (int c = 0; c < 3; ++c)  // the sunlit conditions
       {
-        const Simulator sim(config(beam, kConditions[c], true, ++seed));
+        SimulatorConfig cfg = config(beam, kConditions[c], true, ++seed);
+        cfg.keep_linear = true;
+        const Simulator sim(cfg);
+        worst_snr = worstCaseSnr(sim);
         const SimFrame f = sim.render(0.3 * (seed % 100));
-        s.add(score(fast.detect(f.image, PixelFormat::kBgr8).spots, f));
+        const Spots spots = fast.detect(f.image, PixelFormat::kBgr8).spots;
+        s.add(score(spots, f));
+        // Recall split by SNR: the same matching, truth restricted.
+        std::vector<cv::Point2d> hi, lo;
+        for (size_t t = 0; t < f.visible.size(); ++t)
+        {
+          if (!f.visible[t])
+            continue;
+          const double snr = dotSnr(f, cfg.sensor, t);
+          min_snr = std::min(min_snr, snr);
+          (snr >= worst_snr ? hi : lo).push_back(f.pixels[t]);
+        }
+        in_scope.add(test::score(spots, hi));
+        below.add(test::score(spots, lo));
       }
-  print("36 sunlit frames, sigma 1.5-4 px, fresh seeds: fast", s);
+  std::printf("[ MEASURE ] study's worst case: peak SNR %.1f; dots in these frames: down to %.1f\n", worst_snr,
+              min_snr);
+  print("36 sunlit frames, sigma 1.5-4 px: fast", s);
+  std::printf("[ MEASURE ] recall at peak SNR >= %.1f (the issue's scope): %6.2f %% (%d/%d); below: %6.2f %% (%d/%d)\n",
+              worst_snr, 100.0 * in_scope.recall(), in_scope.matched, in_scope.truth, 100.0 * below.recall(),
+              below.matched, below.truth);
   EXPECT_LE(s.falsePerFrame(), 0.1);
-  // Sunlit frames only are the hard half of the issue's set: this measures
-  // 99.28 % (the detector before the frame-level size/energy test: 99.47 %;
-  // 14 of the 26 dots missed never become candidates). The issue's 99.5 %
-  // is asserted above, over sunlit and night frames.
-  EXPECT_GE(s.recall(), 0.99);
   EXPECT_LE(s.rms(), 0.10);
+  EXPECT_GT(in_scope.truth, 1000);  // the scope is not emptied by a wrong reference
+  EXPECT_GE(in_scope.recall(), 0.995);
+  // Below the study's worst case: reported, bounded loosely.
+  EXPECT_GE(below.recall(), 0.98);
+  EXPECT_GE(s.recall(), 0.99);
 }
 
 // Same projector power spread over a wider beam: below the study's worst SNR.
