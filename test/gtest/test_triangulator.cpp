@@ -396,18 +396,11 @@ TEST(Triangulator, IdentificationMissingAndClutter)
               << ambiguous_right << "/" << ambiguous << " right; study sort " << srt.correct << " right, " << srt.wrong
               << " wrong\n";
     EXPECT_EQ(epi.wrong, 0);
-    if (roll == 0.0)
-    {
-      // Rows parallel to the baseline are read jointly (resolveLines).
-      EXPECT_EQ(identifiable_right, identifiable);
-    }
-    else
-    {
-      // Rotated grid, order-free assignment + consistency check: a dot at
-      // the pattern's edge at 1 m, whose one-sided surface prediction misses
-      // it by 5.1 px (> prediction_tolerance_px), is dropped (1 in 5376).
-      EXPECT_GE(identifiable_right, identifiable - 1);
-    }
+    // Axis-aligned: rows parallel to the baseline are read jointly
+    // (resolveLines). Rotated: order-free assignment + consistency check,
+    // with a wider tolerance for predictions extrapolated at the pattern's
+    // border (an edge dot at 1 m is 5.1 px off its one-sided prediction).
+    EXPECT_EQ(identifiable_right, identifiable);
   }
 }
 
