@@ -1420,8 +1420,31 @@ TriangulationResult Triangulator::process(const Spots& spots, const Triangulatio
         if (previous->points[i].allFinite() && previous->points[i].z() > 0.0)
           previous_px[i] = projectUndistorted(previous->points[i]);
     }
-    beam_of_spot = assignEpipolar(undistorted, &res.ambiguous, previous_px.empty() ? nullptr : &previous_px,
-                                  &res.tracked);
+    beam_of_spot = assignEpipolar(undistorted, &res.ambiguous);
+    if (!previous_px.empty())
+    {
+      // The prior must not overrule what one frame proves. On a grid whose
+      // rows are parallel to the baseline, a depth change of one beam pitch
+      // of disparity between two frames makes the pattern look unmoved, each
+      // dot where its row neighbour was: the prior would read every row
+      // shifted by a column. The single-frame solution sees the rows' ends
+      // and does not; when the two disagree on more spots than half of those
+      // they agree on (and more than 2), the prior is dropped. (A few
+      // disagreements are the single frame's errors: an object's dots read
+      // shifted along an axis-aligned row.)
+      int ambiguous = 0, tracked = -1;
+      std::vector<int> with_prior = assignEpipolar(undistorted, &ambiguous, &previous_px, &tracked);
+      int agree = 0, disagree = 0;
+      for (size_t j = 0; j < spots.size(); ++j)
+        if (beam_of_spot[j] >= 0 && with_prior[j] >= 0)
+          (beam_of_spot[j] == with_prior[j] ? agree : disagree) += 1;
+      if (tracked >= 0 && disagree <= std::max(2, agree / 2))
+      {
+        beam_of_spot.swap(with_prior);
+        res.ambiguous = ambiguous;
+        res.tracked = tracked;
+      }
+    }
   }
 
   double gap_sum = 0.0;
