@@ -99,6 +99,10 @@ double segmentDistance2(const Eigen::Vector2d& p, const Eigen::Vector2d& a, cons
   return (a + t * ab - p).squaredNorm();
 }
 
+// Tolerance of a one-sided (extrapolated) surface prediction, in units of
+// prediction_tolerance_px, for uncontested pairs.
+constexpr double kExtrapolationTolerance = 1.25;
+
 struct Candidate
 {
   int beam;
@@ -121,6 +125,8 @@ std::string TriangulatorOptions::validate() const
     why << "ambiguity_margin = " << ambiguity_margin << " must be >= 0; ";
   if (!(prediction_tolerance_px >= 0.0) || !std::isfinite(prediction_tolerance_px))
     why << "prediction_tolerance_px = " << prediction_tolerance_px << " must be >= 0; ";
+  if (!(tracking_radius_px > 0.0) || !std::isfinite(tracking_radius_px))
+    why << "tracking_radius_px = " << tracking_radius_px << " must be > 0; ";
   std::string s = why.str();
   if (s.size() >= 2)
     s.resize(s.size() - 2);
@@ -362,7 +368,27 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
       continue;
     }
     Eigen::Vector2d px;
-    if (predictPixel(i, support, &px) && (px - spots_px[j]).norm() <= tol)
+    // A prediction from neighbours missing on one side extrapolates the local
+    // plane by about one beam pitch; its error grows with the curvature of
+    // the rock (a dot at the pattern's edge at 1 m on a 15 cm relief: 5.1 px
+    // off). An
+    // uncontested pair (its spot the only candidate of its beam, and the
+    // beam the only one of its spot) gets the extrapolation's wider tolerance.
+    bool up = false, down = false, left = false, right = false;
+    for (int rr = std::max(0, r - 1); rr <= std::min(rows - 1, r + 1); ++rr)
+      for (int cc = std::max(0, c - 1); cc <= std::min(cols - 1, c + 1); ++cc)
+        if ((rr != r || cc != c) && (*spot_of_beam)[rr * cols + cc] >= 0)
+        {
+          up |= rr < r;
+          down |= rr > r;
+          left |= cc < c;
+          right |= cc > c;
+        }
+    // On the pattern's border (or next to a hole as wide as the
+    // 8-neighbourhood) the plane is extrapolated across the missing side.
+    const bool extrapolated = !(up && down && left && right);
+    const double tol_here = extrapolated && !contested[i] ? kExtrapolationTolerance * tol : tol;
+    if (predictPixel(i, support, &px) && (px - spots_px[j]).norm() <= tol_here)
       continue;
     if (agreeing(i, j, support, tol) < 2)
       reject.push_back(i);
@@ -950,7 +976,9 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
   return accepted;
 }
 
-std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>& spots_px, int* ambiguous_out) const
+std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>& spots_px, int* ambiguous_out,
+                                              const std::vector<Eigen::Vector2d>* previous_px,
+                                              int* tracked_out) const
 {
   const int n_beams = projector_.beamCount();
   const int n_spots = static_cast<int>(spots_px.size());
@@ -994,6 +1022,154 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   const auto triangulateCandidate = [&](int beam, int spot, Eigen::Vector3d* p) {
     return triangulatePixel(beam, spots_px[spot], p);
   };
+
+  // Tracking prior. Where beam i's dot was last frame, moved by the median
+  // shift of the pattern (the rig's jitter moves all dots nearly alike),
+  // predicts where it is now within tracking_radius_px; depth changes move a
+  // dot along its own segment by much less between frames. A beam whose only
+  // nearby candidate is a spot near no other beam's prediction is settled
+  // before anything else and is proven (the consistency check leaves it).
+  std::vector<Eigen::Vector2d> track_px(n_beams, Eigen::Vector2d::Constant(kNaN));
+  int tracked = -1;
+  if (previous_px && static_cast<int>(previous_px->size()) == n_beams)
+  {
+    const double search = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 4.0 * config_.tracking_radius_px;
+    std::vector<double> dx, dy;
+    int with_prior = 0;
+    for (int i = 0; i < n_beams; ++i)
+    {
+      const Eigen::Vector2d& q = (*previous_px)[i];
+      if (!q.allFinite())
+        continue;
+      ++with_prior;
+      int nearest = -1;
+      double best = search;
+      for (int k : cand_of_beam[i])
+      {
+        const double d = (spots_px[candidates[k].spot] - q).norm();
+        if (d < best)
+        {
+          best = d;
+          nearest = candidates[k].spot;
+        }
+      }
+      if (nearest >= 0)
+      {
+        dx.push_back(spots_px[nearest].x() - q.x());
+        dy.push_back(spots_px[nearest].y() - q.y());
+      }
+    }
+    if (dx.size() >= 3)
+    {
+      const auto median = [](std::vector<double> v) {
+        std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+        return v[v.size() / 2];
+      };
+      const Eigen::Vector2d shift(median(dx), median(dy));
+      const double radius = config_.tracking_radius_px;
+      // Then an affine map of the image (the rig's roll and change of scale
+      // move dots differently across the image) fitted to the nearest
+      // candidates within twice the radius of the shifted positions.
+      Eigen::Matrix<double, 6, 6> ata = Eigen::Matrix<double, 6, 6>::Zero();
+      Eigen::Matrix<double, 6, 1> atb = Eigen::Matrix<double, 6, 1>::Zero();
+      int fit_pairs = 0;
+      for (int i = 0; i < n_beams; ++i)
+      {
+        const Eigen::Vector2d& q = (*previous_px)[i];
+        if (!q.allFinite())
+          continue;
+        int nearest = -1, near = 0;
+        for (int k : cand_of_beam[i])
+          if ((spots_px[candidates[k].spot] - q - shift).norm() <= 2.0 * radius)
+          {
+            nearest = candidates[k].spot;
+            ++near;
+          }
+        if (near != 1)
+          continue;
+        for (int axis = 0; axis < 2; ++axis)
+        {
+          Eigen::Matrix<double, 6, 1> a = Eigen::Matrix<double, 6, 1>::Zero();
+          a(3 * axis) = q.x();
+          a(3 * axis + 1) = q.y();
+          a(3 * axis + 2) = 1.0;
+          ata += a * a.transpose();
+          atb += a * spots_px[nearest](axis);
+        }
+        ++fit_pairs;
+      }
+      Eigen::Matrix<double, 6, 1> affine;
+      affine << 1.0, 0.0, shift.x(), 0.0, 1.0, shift.y();
+      if (fit_pairs >= 6)
+      {
+        const Eigen::Matrix<double, 6, 1> x = ata.ldlt().solve(atb);
+        if (x.allFinite())
+          affine = x;
+      }
+      std::vector<int> near_spot(n_beams, -1), near_count(n_beams, 0), claims(n_spots, 0);
+      for (int i = 0; i < n_beams; ++i)
+      {
+        const Eigen::Vector2d& q = (*previous_px)[i];
+        if (!q.allFinite())
+          continue;
+        track_px[i] = Eigen::Vector2d(affine(0) * q.x() + affine(1) * q.y() + affine(2),
+                                      affine(3) * q.x() + affine(4) * q.y() + affine(5));
+        for (int k : cand_of_beam[i])
+        {
+          const int j = candidates[k].spot;
+          if ((spots_px[j] - track_px[i]).norm() <= radius)
+          {
+            near_spot[i] = j;
+            ++near_count[i];
+            ++claims[j];
+          }
+        }
+      }
+      int unique = 0;
+      for (int i = 0; i < n_beams; ++i)
+        unique += near_count[i] == 1 && claims[near_spot[i]] == 1;
+      if (unique >= 3 && 2 * unique >= with_prior)
+      {
+        tracked = 0;
+        for (int i = 0; i < n_beams; ++i)
+        {
+          if (near_count[i] != 1 || claims[near_spot[i]] != 1)
+            continue;
+          Eigen::Vector3d p;
+          if (!triangulateCandidate(i, near_spot[i], &p))
+            continue;
+          spot_of_beam[i] = near_spot[i];
+          beam_of_spot[near_spot[i]] = i;
+          accepted_point[i] = p;
+          contested[i] = 0;
+          ++tracked;
+        }
+      }
+      else
+      {
+        track_px.assign(n_beams, Eigen::Vector2d::Constant(kNaN));
+      }
+    }
+  }
+  // A beam that had a dot last frame may only take a spot near its
+  // prediction: a spurious spot on the segment of a dot that vanished this
+  // frame lands at a depth of its own. Forbidden pairs are removed from the
+  // candidate lists.
+  if (tracked >= 0)
+  {
+    const auto far_from_track = [&](const Candidate& cand) {
+      return track_px[cand.beam].allFinite() &&
+             (spots_px[cand.spot] - track_px[cand.beam]).norm() > config_.tracking_radius_px;
+    };
+    for (auto& list : cand_of_beam)
+      list.erase(std::remove_if(list.begin(), list.end(), [&](int k) { return far_from_track(candidates[k]); }),
+                 list.end());
+    for (auto& list : cand_of_spot)
+      list.erase(std::remove_if(list.begin(), list.end(), [&](int k) { return far_from_track(candidates[k]); }),
+                 list.end());
+  }
+  if (tracked_out)
+    *tracked_out = tracked;
 
   const auto onOneGridLine = [&](const std::vector<int>& beams) {
     const int cols = projector_.cols;
@@ -1196,6 +1372,11 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
 
 TriangulationResult Triangulator::process(const Spots& spots) const
 {
+  return process(spots, nullptr);
+}
+
+TriangulationResult Triangulator::process(const Spots& spots, const TriangulationResult* previous) const
+{
   const int n_beams = projector_.beamCount();
   TriangulationResult res;
   res.points.assign(n_beams, Eigen::Vector3d::Constant(kNaN));
@@ -1231,7 +1412,55 @@ TriangulationResult Triangulator::process(const Spots& spots) const
   }
   else
   {
+    std::vector<Eigen::Vector2d> previous_px;
+    if (previous && static_cast<int>(previous->points.size()) == n_beams)
+    {
+      previous_px.assign(n_beams, Eigen::Vector2d::Constant(kNaN));
+      for (int i = 0; i < n_beams; ++i)
+        if (previous->points[i].allFinite() && previous->points[i].z() > 0.0)
+          previous_px[i] = projectUndistorted(previous->points[i]);
+    }
     beam_of_spot = assignEpipolar(undistorted, &res.ambiguous);
+    if (!previous_px.empty())
+    {
+      // The prior and the single frame can each be wrong where the other is
+      // right. On a grid whose rows are parallel to the baseline, a depth
+      // change of one beam pitch of disparity between two frames makes the
+      // pattern look unmoved, each dot where its row neighbour was: the
+      // prior then reads every row shifted by a column, which the single
+      // frame (seeing the rows' ends) does not. Conversely the single frame
+      // may read an object's dots shifted along their rows where the prior
+      // does not. A spot the two give to different beams is given to none;
+      // when that happens to more than max(2, half the spots they agree
+      // on), only the pairs both agree on are kept and the prior counts as
+      // not used.
+      int ambiguous = 0, tracked = -1;
+      const std::vector<int> with_prior = assignEpipolar(undistorted, &ambiguous, &previous_px, &tracked);
+      if (tracked >= 0)
+      {
+        int agree = 0, disagree = 0;
+        for (size_t j = 0; j < spots.size(); ++j)
+          if (beam_of_spot[j] >= 0 && with_prior[j] >= 0)
+            (beam_of_spot[j] == with_prior[j] ? agree : disagree) += 1;
+        const bool trusted = disagree <= std::max(2, agree / 2);
+        for (size_t j = 0; j < spots.size(); ++j)
+        {
+          // A beam without a prior gets only what the single frame proves.
+          const bool unprimed = with_prior[j] >= 0 && !previous_px[with_prior[j]].allFinite();
+          const bool conflict = (beam_of_spot[j] >= 0 && with_prior[j] >= 0 && beam_of_spot[j] != with_prior[j]) ||
+                                (unprimed && beam_of_spot[j] != with_prior[j]);
+          if (conflict || (!trusted && beam_of_spot[j] != with_prior[j]))
+            beam_of_spot[j] = -1;
+          else if (trusted)
+            beam_of_spot[j] = with_prior[j];
+        }
+        if (trusted)
+        {
+          res.ambiguous = ambiguous;
+          res.tracked = tracked;
+        }
+      }
+    }
   }
 
   double gap_sum = 0.0;

@@ -62,6 +62,12 @@ struct TriangulatorOptions
   // both (ambiguous pairs are then rejected).
   double prediction_tolerance_px = 5.0;
   BeamAssignment assignment = BeamAssignment::kEpipolar;
+  // Tracking prior (process() with a previous result): expected motion of a
+  // dot between two frames beyond the common image shift of the pattern
+  // (undistorted px). A beam whose only candidate lies within this radius of
+  // where its dot was last frame (plus the common shift) is accepted first;
+  // a beam that had a dot last frame is not given a spot farther than this.
+  double tracking_radius_px = 1.5;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;
@@ -80,6 +86,7 @@ struct TriangulationResult
   int rejected_gap = 0;      // assigned beams whose ray gap exceeded max_ray_gap
   int rejected_depth = 0;    // assigned beams triangulated outside [min_depth, max_depth]
   int unassigned_spots = 0;  // spots that are spurious, ambiguous or outside every gate
+  int tracked = -1;          // beams settled by the tracking prior; -1 = no usable prior
   double mean_ray_gap = 0.0; // metres, over the valid points (0 when none)
 };
 
@@ -117,11 +124,30 @@ public:
                const TriangulatorOptions& config = TriangulatorOptions());
 
   TriangulationResult process(const Spots& spots) const;
+  // With a tracking prior: `previous` is this Triangulator's result for the
+  // previous frame of the same camera and projector (its points give where
+  // each beam's dot was). The prior is used only when at least half of the
+  // beams that had a point last frame (and >= 3) find a single candidate
+  // near their previous position after removing the pattern's median shift;
+  // otherwise (a jump, a new scene) this is process(spots). The single-frame
+  // solution is computed too and reconciled: a spot the two give to
+  // different beams goes to none, a beam without a prior gets only what the
+  // single frame proves, and when they disagree on more than max(2, half
+  // the spots they agree on) only their common pairs are kept (tracked =
+  // -1): on an axis-aligned grid a depth change of one beam pitch of
+  // disparity between frames makes the pattern look unmoved. nullptr =
+  // none. Only the epipolar assignment uses it.
+  TriangulationResult process(const Spots& spots, const TriangulationResult* previous) const;
 
   // Beam of every spot (-1 = none) for already undistorted pixel positions
   // (NaN entries are ignored). *ambiguous counts the pairs left unassigned
-  // because an alternative of nearly equal cost exists.
-  std::vector<int> assignEpipolar(const std::vector<Eigen::Vector2d>& undistorted_px, int* ambiguous) const;
+  // because an alternative of nearly equal cost exists. `previous_px`
+  // (optional, per beam, undistorted px, NaN = no dot) is the tracking prior.
+  // *tracked (optional) receives how many beams the prior settled (-1 when
+  // it was not usable).
+  std::vector<int> assignEpipolar(const std::vector<Eigen::Vector2d>& undistorted_px, int* ambiguous,
+                                  const std::vector<Eigen::Vector2d>* previous_px = nullptr,
+                                  int* tracked = nullptr) const;
 
   // Undistorted pixel position of a distorted pixel (NaN in, NaN out).
   Eigen::Vector2d undistortPixel(double x, double y) const;

@@ -166,6 +166,7 @@ private:
     o.max_ray_gap = c.max_ray_gap;
     o.ambiguity_margin = c.ambiguity_margin;
     o.prediction_tolerance_px = c.prediction_tolerance_px;
+    o.tracking_radius_px = c.tracking_radius_px;
     o.assignment = c.assignment == "sort" ? BeamAssignment::kSort : BeamAssignment::kEpipolar;
     return o;
   }
@@ -181,7 +182,7 @@ private:
     return a.min_depth == b.min_depth && a.max_depth == b.max_depth &&
            a.max_epipolar_distance_px == b.max_epipolar_distance_px && a.max_ray_gap == b.max_ray_gap &&
            a.ambiguity_margin == b.ambiguity_margin && a.prediction_tolerance_px == b.prediction_tolerance_px &&
-           a.assignment == b.assignment;
+           a.tracking_radius_px == b.tracking_radius_px && a.assignment == b.assignment;
   }
 
   void spotsCallback(const CentroidArrayConstPtr& msg)
@@ -270,7 +271,32 @@ private:
       nan_frames_ += 1;
       return;
     }
-    const TriangulationResult result = tri->process(spots);
+    // Tracking prior: the previous result of this same core object (a new
+    // calibration, camera_info or config makes a new one), unless the stamps
+    // are too far apart or go backwards (a bag looping). When too few beams
+    // persisted, the core itself falls back to the single-frame solution.
+    std::shared_ptr<const TriangulationResult> prior;
+    {
+      std::lock_guard<std::mutex> lock(track_mutex_);
+      const double gap = (msg->header.stamp - prior_stamp_).toSec();
+      if (config.use_tracking && prior_ && prior_owner_ == tri && gap > 0.0 && gap <= config.tracking_reset_gap)
+        prior = prior_;
+    }
+    const TriangulationResult result = tri->process(spots, prior.get());
+    {
+      std::lock_guard<std::mutex> lock(track_mutex_);
+      if (config.use_tracking)
+      {
+        prior_ = std::make_shared<const TriangulationResult>(result);
+        prior_owner_ = tri;
+        prior_stamp_ = msg->header.stamp;
+      }
+      else
+      {
+        prior_.reset();
+        prior_owner_.reset();
+      }
+    }
 
     const ProjectorCalibration& cal = tri->projector();
     points_pub_.publish(makeBeamCloud(msg->header, cal.rows, cal.cols, result.points, result.intensity));
@@ -331,6 +357,8 @@ private:
     stat.add("spots unassigned", last_.unassigned_spots);
     stat.add("frames dropped for NaN centroids", nan_frames_);
     stat.add("mean ray gap (mm)", last_.mean_ray_gap * 1e3);
+    stat.add("beams settled by the tracking prior", last_.tracked < 0 ? std::string("no prior") :
+                                                                         std::to_string(last_.tracked));
     stat.add("processing time (ms)", last_ms_);
   }
 
@@ -350,6 +378,12 @@ private:
   std::string calibration_error_;
   sensor_msgs::CameraInfoConstPtr info_;
   std::shared_ptr<const Triangulator> triangulator_;
+
+  // Tracking prior: the last published result, the core object that made it, its stamp.
+  std::mutex track_mutex_;
+  std::shared_ptr<const TriangulationResult> prior_;
+  std::shared_ptr<const Triangulator> prior_owner_;
+  ros::Time prior_stamp_;
   std::atomic<bool> stale_warned_{false};
 
   // ROS I/O.
