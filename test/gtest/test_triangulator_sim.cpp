@@ -24,6 +24,22 @@ struct SimSpots
   SimFrame frame;
 };
 
+// Adds `clutter` spurious spots uniformly over the image (beam -1) and
+// shuffles, so that the order of the spots says nothing about the beams.
+void addClutterAndShuffle(int clutter, const CameraModel& cam, std::mt19937& rng, Spots* spots)
+{
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (int k = 0; k < clutter; ++k)
+  {
+    Spot s;
+    s.x = uni(rng) * (cam.width - 1);
+    s.y = uni(rng) * (cam.height - 1);
+    s.beam = -1;
+    spots->push_back(s);
+  }
+  std::shuffle(spots->begin(), spots->end(), rng);
+}
+
 SimSpots spotsFromSim(const Simulator& sim, double t, double noise_px, double drop, int clutter, uint32_t seed)
 {
   SimSpots out;
@@ -43,15 +59,7 @@ SimSpots spotsFromSim(const Simulator& sim, double t, double noise_px, double dr
     s.beam = static_cast<int>(i);
     out.spots.push_back(s);
   }
-  for (int k = 0; k < clutter; ++k)
-  {
-    Spot s;
-    s.x = uni(rng) * (cam.width - 1);
-    s.y = uni(rng) * (cam.height - 1);
-    s.beam = -1;
-    out.spots.push_back(s);
-  }
-  std::shuffle(out.spots.begin(), out.spots.end(), rng);
+  addClutterAndShuffle(clutter, cam, rng, &out.spots);
   return out;
 }
 
@@ -241,15 +249,7 @@ SeqFrame sequenceFrame(const Simulator& sim, double t, double drop, int clutter,
     s.beam = -1;
     out.spots.push_back(s);
   }
-  for (int k = 0; k < clutter; ++k)
-  {
-    Spot s;
-    s.x = uni(rng) * (cam.width - 1);
-    s.y = uni(rng) * (cam.height - 1);
-    s.beam = -1;
-    out.spots.push_back(s);
-  }
-  std::shuffle(out.spots.begin(), out.spots.end(), rng);
+  addClutterAndShuffle(clutter, cam, rng, &out.spots);
   return out;
 }
 
