@@ -10,7 +10,7 @@
 #include <vector>
 #include <iostream>
 
-#include "../test/gtest/triangulator_scene.h"
+#include "support/triangulator_scene.h"
 #include "structured_light_stabilizer/triangulator.h"
 
 using namespace structured_light_stabilizer;

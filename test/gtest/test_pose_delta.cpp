@@ -1,4 +1,4 @@
-// PoseDelta core on synthetic height-field rocks (test/gtest/pose_delta_scene.h):
+// PoseDelta core on synthetic height-field rocks (test/support/pose_delta_scene.h):
 // the surface model, geometric registration against ground truth, the
 // beam-index trap, observability on a flat board, frame-to-frame chaining,
 // texture on a flat textured board, and bad input.
@@ -9,7 +9,7 @@
 #include <Eigen/SVD>
 #include <gtest/gtest.h>
 
-#include "pose_delta_scene.h"
+#include "support/pose_delta_scene.h"
 #include "structured_light_stabilizer/pose_delta.h"
 
 using namespace structured_light_stabilizer;

@@ -9,7 +9,7 @@
 
 #include "structured_light_stabilizer/projector_calibrator.h"
 #include "structured_light_stabilizer/triangulator.h"
-#include "triangulator_scene.h"
+#include "support/triangulator_scene.h"
 
 using namespace structured_light_stabilizer;
 using sls_test::Frame;

@@ -8,8 +8,8 @@
 #include <gtest/gtest.h>
 
 #include "structured_light_stabilizer/spot_detector.h"
-#include "spot_score.h"
-#include "synthetic_dots.h"
+#include "support/spot_score.h"
+#include "support/synthetic_dots.h"
 
 using namespace structured_light_stabilizer;
 using structured_light_stabilizer::test::Score;

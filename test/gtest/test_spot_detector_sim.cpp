@@ -18,7 +18,7 @@
 
 #include "structured_light_stabilizer/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
-#include "spot_score.h"
+#include "support/spot_score.h"
 
 using namespace structured_light_stabilizer;
 using structured_light_stabilizer::test::Score;

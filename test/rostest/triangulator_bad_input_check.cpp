@@ -10,7 +10,7 @@
 #include <sensor_msgs/PointCloud2.h>
 #include <std_srvs/Trigger.h>
 
-#include "../gtest/triangulator_scene.h"
+#include "support/triangulator_scene.h"
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/conversions.h"
 

@@ -8,7 +8,7 @@
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/PointCloud2.h>
 
-#include "../gtest/triangulator_scene.h"
+#include "support/triangulator_scene.h"
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/conversions.h"
 
