@@ -13,7 +13,7 @@
 #include <opencv2/core.hpp>
 
 #include "structured_light_stabilizer/pose_delta.h"
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 using namespace structured_light_stabilizer;
 

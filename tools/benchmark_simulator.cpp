@@ -13,7 +13,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 using structured_light_stabilizer::SimFrame;
 using structured_light_stabilizer::Simulator;

@@ -20,7 +20,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
 
 using namespace structured_light_stabilizer;

@@ -12,7 +12,7 @@
 #include <random>
 
 #include "structured_light_stabilizer/pose_delta.h"
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 using namespace structured_light_stabilizer;
 

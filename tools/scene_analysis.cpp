@@ -16,7 +16,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
-#include "structured_light_stabilizer/scene_analysis.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
 
 namespace sls = structured_light_stabilizer;
 

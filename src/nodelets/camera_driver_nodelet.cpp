@@ -35,7 +35,7 @@
 #include "structured_light_stabilizer/PoseDelta.h"
 #include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/projector_calibration.h"
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 namespace structured_light_stabilizer
 {

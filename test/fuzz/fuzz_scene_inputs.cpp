@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "structured_light_stabilizer/scene_analysis.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
 {

@@ -19,7 +19,7 @@
 #include <gtest/gtest.h>
 
 #include "structured_light_stabilizer/projector_calibration.h"
-#include "structured_light_stabilizer/scene_analysis.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
 
 namespace
 {

@@ -13,7 +13,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/scene_analysis.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
 
 using namespace structured_light_stabilizer;
 

@@ -3,7 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "structured_light_stabilizer/projector_calibration.h"
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 using namespace structured_light_stabilizer;
 

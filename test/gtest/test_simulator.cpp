@@ -8,8 +8,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "structured_light_stabilizer/scene_analysis.h"
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 namespace sls = structured_light_stabilizer;
 

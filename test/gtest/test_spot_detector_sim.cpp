@@ -16,7 +16,7 @@
 
 #include <gtest/gtest.h>
 
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
 #include "support/spot_score.h"
 

@@ -9,7 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "structured_light_stabilizer/projector_calibrator.h"
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/triangulator.h"
 #include "support/triangulator_scene.h"
 

@@ -38,7 +38,7 @@
 
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/projector_calibration.h"
-#include "structured_light_stabilizer/scene_analysis.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
 
 namespace structured_light_stabilizer
 {

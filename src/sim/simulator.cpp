@@ -1,4 +1,4 @@
-#include "structured_light_stabilizer/simulator.h"
+#include "structured_light_stabilizer/sim/simulator.h"
 
 #include <algorithm>
 #include <array>

@@ -1,4 +1,4 @@
-#include "structured_light_stabilizer/scene_analysis.h"
+#include "structured_light_stabilizer/sim/scene_analysis.h"
 
 #include <algorithm>
 #include <cmath>
