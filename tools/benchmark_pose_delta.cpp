@@ -36,7 +36,7 @@ int main(int argc, char** argv)
                         {"rough rock, frame_to_frame    ", 0.15, true, PoseDeltaMode::kFrameToFrame}};
   for (const Case& c : cases)
   {
-    SimulatorConfig sc;
+    SimulatorParams sc;
     sc.rock.relief_m = c.relief_m;
     sc.motion.jitter_translation_m = 0.010;
     sc.motion.jitter_rotation_rad = 1.0 * 3.14159265358979323846 / 180.0;

@@ -17,7 +17,7 @@
 
 using structured_light_stabilizer::SimFrame;
 using structured_light_stabilizer::Simulator;
-using structured_light_stabilizer::SimulatorConfig;
+using structured_light_stabilizer::SimulatorParams;
 
 int main(int argc, char** argv)
 {
@@ -28,23 +28,23 @@ int main(int argc, char** argv)
   struct Case
   {
     std::string name;
-    SimulatorConfig config;
+    SimulatorParams config;
   };
   std::vector<Case> cases;
   {
-    Case c{"default", SimulatorConfig()};
+    Case c{"default", SimulatorParams()};
     c.config.motion.jitter_translation_m = 0.003;
     c.config.motion.jitter_rotation_rad = 0.002;
     cases.push_back(c);
   }
   {
-    Case c{"night_flat", SimulatorConfig()};
+    Case c{"night_flat", SimulatorParams()};
     c.config.lighting.sun_level = 0.0;
     c.config.rock.relief_m = 0.0;
     cases.push_back(c);
   }
   {
-    Case c{"bright_relief50_distorted_clutter", SimulatorConfig()};
+    Case c{"bright_relief50_distorted_clutter", SimulatorParams()};
     c.config.lighting.sun_level = 1.0;
     c.config.rock.relief_m = 0.5;
     c.config.sensor.camera.distortion = structured_light_stabilizer::DistortionModel::kPlumbBob;

@@ -81,7 +81,7 @@ int main(int argc, char** argv)
   const double suns[] = {1.0, 0.5};
   for (int i = 0; i < std::min(frames, 8); ++i)
   {
-    SimulatorConfig cfg;
+    SimulatorParams cfg;
     cfg.projector.beam_sigma_rad = beams[i % 4];
     cfg.lighting.sun_level = suns[(i / 4) % 2];
     cfg.lighting.dot_to_sun_ratio *= std::pow(cfg.projector.beam_sigma_rad / 0.002, 2.0);

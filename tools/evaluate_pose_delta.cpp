@@ -49,7 +49,7 @@ struct Sums
 
 Sums runOne(double relief, bool texture, uint32_t seed, int frames, double noise_m)
 {
-  SimulatorConfig c;
+  SimulatorParams c;
   c.rock.relief_m = relief;
   c.rock.seed = seed;
   c.noise_seed = 42 + seed;

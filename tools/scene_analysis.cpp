@@ -39,7 +39,7 @@ void printSimulatorRecipe(const sls::SceneAnalysis& a)
   const double stated = sls::dotToSunRatio(a, sls::RadiometryModel::kStudyAsStated);
   const double weakest = a.irradiance_latitude.min * std::cos(in.sun_incidence_max_deg * kDeg) /
                          (a.irradiance_latitude.max * std::cos(in.sun_incidence_min_deg * kDeg));
-  std::printf("\nSimulator brightness (LightingConfig; sun_level 1 = F50 %.1f W/m^2 on the rock at %.0f deg)\n",
+  std::printf("\nSimulator brightness (LightingParams; sun_level 1 = F50 %.1f W/m^2 on the rock at %.0f deg)\n",
               a.irradiance_latitude.max, in.sun_incidence_min_deg);
   std::printf("  dot_to_sun_ratio = dot peak / sunlit rock, photo-electrons, at sun_level 1 (any albedo):\n");
   std::printf("    study as stated (= its 'SNR 32')       : %.4g\n", stated);

@@ -231,9 +231,9 @@ private:
 
   bool setUpSimulator(ros::NodeHandle& pnh)
   {
-    SimulatorConfig c;
+    SimulatorParams c;
     // The simulator's parameters (README, "Parameters of the simulator"),
-    // read over the defaults of SimulatorConfig.
+    // read over the defaults of SimulatorParams.
     readInteger(pnh, "seed", &c.rock.seed);
     readInteger(pnh, "noise_seed", &c.noise_seed);
     readInteger(pnh, "projector_rows", &c.projector.rows);
@@ -304,7 +304,7 @@ private:
     }
     double ratio = -1.0;
     readNumber(pnh, "dot_to_sun_ratio", &ratio);
-    c.lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingConfig::sceneDotToSunRatio(model);
+    c.lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingParams::sceneDotToSunRatio(model);
     const std::string ratio_source = ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
     duration_s_ = pnh.param("duration", 0.0);
 
@@ -374,7 +374,7 @@ private:
     // Called with config_mutex_ held.
     if (simulator_)
     {
-      SimulatorConfig c = simulator_->config();
+      SimulatorParams c = simulator_->params();
       c.lighting.sun_level = config.sun_level;
       RadiometryModel model = RadiometryModel::kStudyAsStated;
       if (!radiometryModel(config.radiometry, &model))
@@ -386,7 +386,7 @@ private:
       }
       radiometry_ = config.radiometry;
       c.lighting.dot_to_sun_ratio =
-          config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingConfig::sceneDotToSunRatio(model);
+          config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingParams::sceneDotToSunRatio(model);
       c.lighting.exposure = config.exposure;
       c.projector.power_scale = config.power_scale;
       c.motion.jitter_translation_m = config.jitter_translation;
@@ -404,7 +404,7 @@ private:
       {
         NODELET_ERROR("CameraDriver: rejected simulator settings (%s); keeping the previous ones", e.what());
         // Show the values in force, not the rejected ones, in rqt_reconfigure.
-        const SimulatorConfig& kept = simulator_->config();
+        const SimulatorParams& kept = simulator_->params();
         config.sun_level = kept.lighting.sun_level;
         config.dot_to_sun_ratio = kept.lighting.dot_to_sun_ratio;
         config.exposure = kept.lighting.exposure;

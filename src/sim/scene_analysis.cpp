@@ -958,7 +958,7 @@ SceneAnalysis analyseScene(const SceneInputs& inputs)
   t.add("snr_led_day_worst_unsaturated", "SNR case 3 worst, exposure within the full well", "§2.1.3.5",
         a.snr_led_day_worst_unsaturated, 1, "", "");
   t.add("dot_to_sun_ratio", "Dot / sun photo-electrons at sun_level 1", "simulator", dotToSunRatio(a), 1, "", "",
-        "corrected physics (LightingConfig::dot_to_sun_ratio)");
+        "corrected physics (LightingParams::dot_to_sun_ratio)");
   t.add("dot_to_sun_ratio_study", "Dot / sun photo-electrons, study as stated", "simulator",
         dotToSunRatio(a, RadiometryModel::kStudyAsStated), 1, "", "32",
         "the study's worst-case SNR 32 is this ratio (its noise model); x100 slip and electrical power included")

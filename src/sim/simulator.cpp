@@ -25,8 +25,8 @@ constexpr double kPi = 3.14159265358979323846;
 // dot_to_sun_ratio refers to a beam of this divergence hitting the rock at
 // this distance at normal incidence; a narrower beam concentrates the same
 // power on a smaller footprint.
-constexpr double kRefBeamSigmaRad = LightingConfig::kReferenceBeamSigmaRad;
-constexpr double kRefDistanceM = LightingConfig::kReferenceDistanceM;
+constexpr double kRefBeamSigmaRad = LightingParams::kReferenceBeamSigmaRad;
+constexpr double kRefDistanceM = LightingParams::kReferenceDistanceM;
 
 // Relative response of the B, G, R pixels of a Bayer sensor to 520 nm light:
 // mostly green, with the usual cross-talk into blue and a little into red.
@@ -385,7 +385,7 @@ struct Simulator::Impl
 
 // ---------------------------------------------------------------------------
 
-std::string SimulatorConfig::validate() const
+std::string SimulatorParams::validate() const
 {
   std::ostringstream why;
   const std::string cam = sensor.camera.validate();
@@ -449,13 +449,13 @@ std::string SimulatorConfig::validate() const
   return s;
 }
 
-Simulator::Simulator(const SimulatorConfig& config) : config_(config)
+Simulator::Simulator(const SimulatorParams& config) : params_(config)
 {
   const std::string why = config.validate();
   if (!why.empty())
     throw std::invalid_argument("invalid simulator config: " + why);
 
-  const ProjectorConfig& pc = config.projector;
+  const ProjectorParams& pc = config.projector;
   const Eigen::Vector3d centre = Eigen::Vector3d(0.0, 0.0, pc.converge_distance_m) - pc.origin_m;
   if (!(centre.z() > 0.0))
     throw std::invalid_argument("invalid simulator config: the projector's central beam must point forward");
@@ -465,7 +465,7 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
     throw std::invalid_argument("invalid simulator config: projector: " + pwhy);
 
   auto impl = std::make_shared<Impl>();
-  const RockConfig& rc = config.rock;
+  const RockParams& rc = config.rock;
   impl->half_w = 0.5 * rc.width_m;
   impl->half_h = 0.5 * rc.height_m;
   impl->cell = std::min(std::max(rc.texture_scale_m / 5.0, 0.002), 0.005);
@@ -666,7 +666,7 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   std::mt19937 rng(seed * 2654435761u + 17u);
   std::uniform_real_distribution<double> ux(-impl->half_w, impl->half_w), uy(-impl->half_h, impl->half_h),
       u01(0.0, 1.0);
-  const ClutterConfig& cl = config.clutter;
+  const ClutterParams& cl = config.clutter;
   for (int n = 0; n < cl.green_specks; ++n)
     impl->clutter.push_back({ux(rng), uy(rng), 0.0008 + 0.0012 * u01(rng), {0.10, 0.40, 0.10}, false});
   for (int n = 0; n < cl.olive_minerals; ++n)
@@ -683,7 +683,7 @@ Simulator::Simulator(const SimulatorConfig& config) : config_(config)
   impl_ = impl;
 }
 
-double LightingConfig::sceneDotToSunRatio(RadiometryModel model)
+double LightingParams::sceneDotToSunRatio(RadiometryModel model)
 {
   // analyseScene() integrates spectra: compute each model once.
   static const double study = dotToSunRatio(SceneInputs(), RadiometryModel::kStudyAsStated,
@@ -693,12 +693,12 @@ double LightingConfig::sceneDotToSunRatio(RadiometryModel model)
   return model == RadiometryModel::kStudyAsStated ? study : corrected;
 }
 
-void Simulator::updateLive(const SimulatorConfig& config)
+void Simulator::updateLive(const SimulatorParams& config)
 {
-  SimulatorConfig c = config_;
+  SimulatorParams c = params_;
   c.lighting = config.lighting;
-  c.lighting.sun_direction = config_.lighting.sun_direction;  // baked into the rock's shading
-  c.lighting.sky_ambient = config_.lighting.sky_ambient;
+  c.lighting.sun_direction = params_.lighting.sun_direction;  // baked into the rock's shading
+  c.lighting.sky_ambient = params_.lighting.sky_ambient;
   c.motion = config.motion;
   c.sensor.read_noise_dn = config.sensor.read_noise_dn;
   c.sensor.shot_noise = config.sensor.shot_noise;
@@ -709,19 +709,19 @@ void Simulator::updateLive(const SimulatorConfig& config)
   const std::string why = c.validate();
   if (!why.empty())
     throw std::invalid_argument("invalid simulator config: " + why);
-  config_ = c;
+  params_ = c;
 }
 
 double Simulator::diameterOfConfusion(double r) const
 {
-  const SensorConfig& s = config_.sensor;
+  const SensorParams& s = params_.sensor;
   const double rf = s.focus_distance_m, f = s.focal_length_m;
   return s.aperture_diameter_m * std::abs(r - rf) / r * f / (rf - f);
 }
 
 Eigen::Isometry3d Simulator::motion(double t) const
 {
-  const RigMotionConfig& m = config_.motion;
+  const RigMotionParams& m = params_.motion;
   const double period = m.return_period_s;
   double tt = t;
   if (period > 0.0)
@@ -881,9 +881,9 @@ void applySplatRow(const Splat& sp, int v, int width, float* row)
 SimFrame Simulator::render(double t) const
 {
   const Impl& im = *impl_;
-  const CameraModel& cam = config_.sensor.camera;
-  const LightingConfig& light = config_.lighting;
-  const SensorConfig& sc = config_.sensor;
+  const CameraModel& cam = params_.sensor.camera;
+  const LightingParams& light = params_.lighting;
+  const SensorParams& sc = params_.sensor;
   const int W = cam.width, H = cam.height;
   const bool lut = !im.ray_lut.empty();
   const bool vignetting = sc.natural_vignetting;
@@ -895,7 +895,7 @@ SimFrame Simulator::render(double t) const
   const Eigen::Isometry3d T_cr = T_rc.inverse();
   const Eigen::Matrix3d R = T_rc.linear();
   const Eigen::Vector3d o = T_rc.translation();
-  const double sun = light.sun_level * LightingConfig::kSunFullScaleDn * light.exposure;
+  const double sun = light.sun_level * LightingParams::kSunFullScaleDn * light.exposure;
 
   // Normalised image coordinates of rock sample (i, j).
   const int Wr = im.rw, Hr = im.rh;
@@ -979,9 +979,9 @@ SimFrame Simulator::render(double t) const
   // with the working f-number N = image distance / aperture.
   const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
   const double sigma_diff_px =
-      0.42 * config_.projector.wavelength_nm * 1e-9 * image_dist / sc.aperture_diameter_m / sc.pixel_size_m;
-  const double dot_gain = light.dot_to_sun_ratio * LightingConfig::kSunFullScaleDn * light.exposure *
-                          config_.projector.power_scale * kRefDistanceM * kRefDistanceM * kRefBeamSigmaRad *
+      0.42 * params_.projector.wavelength_nm * 1e-9 * image_dist / sc.aperture_diameter_m / sc.pixel_size_m;
+  const double dot_gain = light.dot_to_sun_ratio * LightingParams::kSunFullScaleDn * light.exposure *
+                          params_.projector.power_scale * kRefDistanceM * kRefDistanceM * kRefBeamSigmaRad *
                           kRefBeamSigmaRad;
   for (int b = 0; b < nb; ++b)
   {
@@ -1012,7 +1012,7 @@ SimFrame Simulator::render(double t) const
     const Eigen::Matrix3d C = M * (Eigen::Matrix3d::Identity() - bd * bd.transpose()) * M.transpose();
     const Eigen::Matrix<double, 2, 3> J = projectionJacobian(cam, X);
     const Eigen::Matrix2d G = J * C * J.transpose();
-    const double sigma_beam = config_.projector.beam_sigma_rad * s;
+    const double sigma_beam = params_.projector.beam_sigma_rad * s;
     const double z_blur = diameterOfConfusion(X.z()) / 4.0 / sc.pixel_size_m;
     const Eigen::Matrix2d S =
         sigma_beam * sigma_beam * G +
@@ -1253,7 +1253,7 @@ SimFrame Simulator::render(double t) const
   const float read_var = static_cast<float>(sc.read_noise_dn * sc.read_noise_dn);
   const float gain = sc.shot_noise ? static_cast<float>(sc.gain_dn_per_electron) : 0.0f;
   const bool noisy = read_var > 0.0f || gain > 0.0f;
-  uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(config_.noise_seed) << 32) ^ doubleBits(t);
+  uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(params_.noise_seed) << 32) ^ doubleBits(t);
   const uint64_t frame_key = splitmix64(&frame_state);
   // Rock samples first (rows independent); the row pass interpolates them.
   // Rows of 3 Wr floats plus one of slack; kept per thread between frames
@@ -1320,7 +1320,7 @@ SimFrame Simulator::render(double t) const
         L[3 * u + c] = T[a + c] + wx * (T[b + c] - T[a + c]);
     }
   };
-  if (config_.keep_linear)
+  if (params_.keep_linear)
     frame.linear.create(H, W, CV_32FC3);
   frame.image.create(H, W, CV_8UC3);
   cv::parallel_for_(cv::Range(0, H),
@@ -1339,7 +1339,7 @@ SimFrame Simulator::render(double t) const
                         for (int k : band_splats[v / kBand])
                           if (v >= splats[k].v0 && v <= splats[k].v1)
                             applySplatRow(splats[k], v, W, L);
-                        if (config_.keep_linear)
+                        if (params_.keep_linear)
                           std::memcpy(frame.linear.ptr<float>(v), L, sizeof(float) * n3);
                         if (noisy)
                         {

@@ -37,9 +37,9 @@ struct Outcome
   std::string last_status;
 };
 
-SimulatorConfig simConfig(double relief_m, uint32_t rock_seed = 1)
+SimulatorParams simConfig(double relief_m, uint32_t rock_seed = 1)
 {
-  SimulatorConfig c;
+  SimulatorParams c;
   c.rock.relief_m = relief_m;
   c.rock.seed = rock_seed;
   c.motion.jitter_translation_m = 0.010;
@@ -47,7 +47,7 @@ SimulatorConfig simConfig(double relief_m, uint32_t rock_seed = 1)
   return c;
 }
 
-PoseDeltaInput inputOf(const SimFrame& f, const SimulatorConfig& c, double noise_m, std::mt19937* rng)
+PoseDeltaInput inputOf(const SimFrame& f, const SimulatorParams& c, double noise_m, std::mt19937* rng)
 {
   PoseDeltaInput in;
   in.rows = c.projector.rows;
@@ -64,7 +64,7 @@ PoseDeltaInput inputOf(const SimFrame& f, const SimulatorConfig& c, double noise
 
 Outcome run(const Scenario& s, double dt = 0.1)
 {
-  const SimulatorConfig c = simConfig(s.relief_m, s.rock_seed);
+  const SimulatorParams c = simConfig(s.relief_m, s.rock_seed);
   const Simulator sim(c);
   PoseDeltaParams cfg;
   cfg.use_texture = s.use_texture;
@@ -152,7 +152,7 @@ TEST(PoseDeltaSim, FlatBoardTextureOffReportsInPlaneAxes)
 
 TEST(PoseDeltaSim, ReturnsToIdentity)
 {
-  SimulatorConfig c = simConfig(0.15);
+  SimulatorParams c = simConfig(0.15);
   c.motion.return_period_s = 2.0;
   const Simulator sim(c);
   PoseDeltaEstimator est;

@@ -13,7 +13,7 @@ TEST(SimCalibrationFile, MatchesTheSimulatorsDefaultProjector)
   std::string error;
   ASSERT_TRUE(loadProjectorCalibration(std::string(SLS_TEST_DATA_DIR) + "/../../config/projector_sim.yaml", &file, &error))
       << error;
-  const Simulator sim{SimulatorConfig()};
+  const Simulator sim{SimulatorParams()};
   const ProjectorCalibration& exact = sim.projector();
   ASSERT_EQ(file.rows, exact.rows);
   ASSERT_EQ(file.cols, exact.cols);

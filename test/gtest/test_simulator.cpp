@@ -55,9 +55,9 @@ Moments channelMoments(const cv::Mat& img, int channel, const cv::Point2d& c, in
   return m;
 }
 
-sls::SimulatorConfig nightNoNoise()
+sls::SimulatorParams nightNoNoise()
 {
-  sls::SimulatorConfig c;
+  sls::SimulatorParams c;
   c.lighting.sun_level = 0.0;  // no rock background under the dots
   c.sensor.read_noise_dn = 0.0;
   c.sensor.shot_noise = false;
@@ -74,20 +74,20 @@ bool isIdentity(const Eigen::Isometry3d& T, double tol)
 
 TEST(Simulator, RejectsInvalidConfig)
 {
-  sls::SimulatorConfig c;
+  sls::SimulatorParams c;
   c.rock.albedo_min = 0.5;
   c.rock.albedo_max = 0.2;
   EXPECT_FALSE(c.validate().empty());
   EXPECT_THROW(sls::Simulator{c}, std::invalid_argument);
-  c = sls::SimulatorConfig();
+  c = sls::SimulatorParams();
   c.rock.distance_m = -1.0;
   EXPECT_THROW(sls::Simulator{c}, std::invalid_argument);
-  EXPECT_TRUE(sls::SimulatorConfig().validate().empty());
+  EXPECT_TRUE(sls::SimulatorParams().validate().empty());
 }
 
 TEST(Simulator, MotionStartsAtIdentityAndReturnsWithThePeriod)
 {
-  sls::SimulatorConfig c;
+  sls::SimulatorParams c;
   c.motion.jitter_translation_m = 0.004;
   c.motion.jitter_rotation_rad = 0.003;
   c.motion.jitter_frequency_hz = 0.9;
@@ -110,7 +110,7 @@ TEST(Simulator, MotionStartsAtIdentityAndReturnsWithThePeriod)
   EXPECT_LT(mid.translation().norm(), 0.05);
 
   // Without a period the drift accumulates linearly.
-  c.motion = sls::RigMotionConfig();
+  c.motion = sls::RigMotionParams();
   c.motion.drift_velocity_mps = Eigen::Vector3d(0.01, 0, 0);
   sls::Simulator drift(c);
   // delta = T_cur_ref: the camera moved +x, so rock points move -x in it.
@@ -126,7 +126,7 @@ TEST(Simulator, HitPointsLieOnTheSurfaceAndOnTheirBeams)
 {
   for (double relief : {0.0, 0.15, 0.5})
   {
-    sls::SimulatorConfig c;
+    sls::SimulatorParams c;
     c.rock.relief_m = relief;
     c.rock.tilt_x_rad = 0.1;
     c.motion.jitter_translation_m = 0.01;
@@ -168,7 +168,7 @@ TEST(Simulator, NoiseFreeDotCentroidIsTheProjectedHitPoint)
 {
   for (bool distorted : {false, true})
   {
-    sls::SimulatorConfig c = nightNoNoise();
+    sls::SimulatorParams c = nightNoNoise();
     c.lighting.dot_to_sun_ratio = 1.5;  // peaks stay below saturation
     if (distorted)
     {
@@ -210,7 +210,7 @@ TEST(Simulator, NoiseFreeDotCentroidIsTheProjectedHitPoint)
 
 TEST(Simulator, SameSeedGivesIdenticalFramesWhateverTheThreadCount)
 {
-  sls::SimulatorConfig c;
+  sls::SimulatorParams c;
   c.motion.jitter_translation_m = 0.003;
   c.clutter.green_specks = 50;
   c.clutter.olive_minerals = 10;
@@ -222,7 +222,7 @@ TEST(Simulator, SameSeedGivesIdenticalFramesWhateverTheThreadCount)
   cv::setNumThreads(threads);
   EXPECT_EQ(cv::norm(a.image, b.image, cv::NORM_INF), 0.0);
   // Another noise seed, another time, or another rock seed change the frame.
-  sls::SimulatorConfig c2 = c;
+  sls::SimulatorParams c2 = c;
   c2.noise_seed = 7;
   EXPECT_GT(cv::norm(a.image, sls::Simulator(c2).render(0.5).image, cv::NORM_L1), 0.0);
   EXPECT_GT(cv::norm(a.image, sls::Simulator(c).render(0.6).image, cv::NORM_L1), 0.0);
@@ -239,7 +239,7 @@ TEST(Simulator, SubsampledRockShadingMatchesTheExactOne)
   // identical by construction (rendered per pixel), so this is the rock.
   for (int variant = 0; variant < 3; ++variant)
   {
-    sls::SimulatorConfig c;
+    sls::SimulatorParams c;
     c.lighting.sun_level = 1.0;
     c.sensor.read_noise_dn = 0.0;
     c.sensor.shot_noise = false;
@@ -253,7 +253,7 @@ TEST(Simulator, SubsampledRockShadingMatchesTheExactOne)
       c.sensor.camera.distortion = sls::DistortionModel::kPlumbBob;
       c.sensor.camera.D = {-0.12, 0.05, 0.0005, -0.0003, 0.0};
     }
-    sls::SimulatorConfig exact = c;
+    sls::SimulatorParams exact = c;
     exact.rock_subsample = 1;
     const cv::Mat a = sls::Simulator(c).render(0.3).linear, b = sls::Simulator(exact).render(0.3).linear;
     cv::Mat diff, mean_level;
@@ -273,7 +273,7 @@ TEST(Simulator, SubsampledRockShadingMatchesTheExactOne)
 
 TEST(Simulator, DefocusFollowsTheDiameterOfConfusion)
 {
-  sls::SimulatorConfig c;
+  sls::SimulatorParams c;
   sls::Simulator study(c);
   // Study §2.1.1.4: DoC = 0.0117 mm for the chosen 1.9 mm aperture, at the far
   // end of the 1-2 m range.
@@ -320,7 +320,7 @@ TEST(Simulator, StepOccludesAndShadowsDots)
   // Two flat planes and a step: analytic first hits to compare with.
   for (double step : {0.4, -0.4})
   {
-    sls::SimulatorConfig c = nightNoNoise();
+    sls::SimulatorParams c = nightNoNoise();
     c.rock.relief_m = 0.0;
     c.rock.step_height_m = step;
     c.rock.step_x_m = step > 0 ? 0.12 : 0.05;
@@ -401,7 +401,7 @@ TEST(Simulator, StepOccludesAndShadowsDots)
 
 TEST(Simulator, BrightDotsSaturateToAYellowWhiteCoreOnBrightRock)
 {
-  sls::SimulatorConfig c;
+  sls::SimulatorParams c;
   c.lighting.sun_level = 1.0;
   c.projector.power_scale = 4.0;
   c.rock.albedo_min = 0.40;
@@ -423,7 +423,7 @@ TEST(Simulator, BrightDotsSaturateToAYellowWhiteCoreOnBrightRock)
   EXPECT_GT(saturated, n / 2);
 
   // And the rock itself is reddish (R > G > B) everywhere away from dots.
-  sls::SimulatorConfig d;
+  sls::SimulatorParams d;
   d.lighting.sun_level = 1.0;
   const cv::Scalar mean = cv::mean(sls::Simulator(d).render(0.0).image);
   std::cout << "[ MEASURE ] mean B G R of a sunlit frame: " << mean[0] << " " << mean[1] << " " << mean[2] << "\n";
@@ -443,7 +443,7 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
   // (pixel box, diffraction, defocus) gives its peak radiance on the rock,
   // divided by the sunlit background under it.
   const sls::SceneAnalysis scene = sls::analyseScene(sls::SceneInputs());
-  const double dot_sigma_m = sls::LightingConfig::kReferenceBeamSigmaRad * sls::LightingConfig::kReferenceDistanceM;
+  const double dot_sigma_m = sls::LightingParams::kReferenceBeamSigmaRad * sls::LightingParams::kReferenceDistanceM;
   const double incidence = scene.inputs.sun_incidence_min_deg * M_PI / 180.0;
   // The weakest daylight sun (lowest F50, 50 deg incidence) as a sun_level,
   // which counts the sun at the study's brightest incidence (10 deg).
@@ -462,15 +462,15 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
   };
   for (const Case& k : cases)
   {
-    sls::SimulatorConfig c;
+    sls::SimulatorParams c;
     c.lighting.sun_level = k.sun_level;
-    c.lighting.dot_to_sun_ratio = sls::LightingConfig::sceneDotToSunRatio(k.model);
+    c.lighting.dot_to_sun_ratio = sls::LightingParams::sceneDotToSunRatio(k.model);
     c.lighting.sun_direction = Eigen::Vector3d(std::sin(incidence), 0.0, -std::cos(incidence));
     c.lighting.sky_ambient = 0.0;
     c.rock.albedo_min = c.rock.albedo_max = k.albedo;
     c.rock.relief_m = 0.0;
     c.keep_linear = true;
-    sls::SimulatorConfig dark = c;
+    sls::SimulatorParams dark = c;
     dark.projector.power_scale = 0.0;
     sls::Simulator sim(c);
     const sls::SimFrame f = sim.render(0.0);
@@ -522,7 +522,7 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
       // projector, the study's LED at 10 deg and the reference distance.
       const sls::BeamRay& beam = sim.projector().beams[b];
       const double cos_i = beam.direction.z();
-      const double range = (f.points[b] - beam.origin).norm() / sls::LightingConfig::kReferenceDistanceM;
+      const double range = (f.points[b] - beam.origin).norm() / sls::LightingParams::kReferenceDistanceM;
       const double ratio = rock_peak / background * std::cos(incidence) / cos_i * range * range;
       worst = std::max(worst, std::abs(ratio / expected_ratio - 1.0));
       sum_ratio += ratio;
@@ -546,11 +546,11 @@ TEST(Simulator, OliveMineralsDoNotLookLikeDots)
   // seed, no noise); compared in OpenCV's HSV hue (0-180).
   for (double sun : {0.3, 1.0})
   {
-    sls::SimulatorConfig c;
+    sls::SimulatorParams c;
     c.lighting.sun_level = sun;
     c.sensor.read_noise_dn = 0.0;
     c.sensor.shot_noise = false;
-    sls::SimulatorConfig olive = c, nodots = c;
+    sls::SimulatorParams olive = c, nodots = c;
     olive.clutter.olive_minerals = 80;
     nodots.projector.power_scale = 0.0;
     const cv::Mat base = sls::Simulator(c).render(0.0).image;

@@ -47,9 +47,9 @@ struct Condition
   double sun, albedo_min, albedo_max;
 };
 
-SimulatorConfig config(double beam_sigma_rad, const Condition& c, bool keep_snr, uint32_t seed)
+SimulatorParams config(double beam_sigma_rad, const Condition& c, bool keep_snr, uint32_t seed)
 {
-  SimulatorConfig cfg;
+  SimulatorParams cfg;
   cfg.projector.beam_sigma_rad = beam_sigma_rad;
   cfg.lighting.sun_level = c.sun;
   cfg.rock.albedo_min = c.albedo_min;
@@ -133,7 +133,7 @@ namespace
 // the noise-free dot peak (SimFrame::peak_dn, green) over the sensor noise of
 // the noise-free local background (median green of SimFrame::linear on a
 // ring of radius 4 sigma + 2 px, outside the dot).
-double dotSnr(const SimFrame& f, const SensorConfig& sc, size_t b)
+double dotSnr(const SimFrame& f, const SensorParams& sc, size_t b)
 {
   const cv::Point2d p = f.pixels[b];
   const double radius = 4.0 * f.blur_sigma_px[b] + 2.0;
@@ -158,15 +158,15 @@ double dotSnr(const SimFrame& f, const SensorConfig& sc, size_t b)
 // (SNR 32); the dot/sun ratio, which decides detection, is the study's.
 double worstCaseSnr(const Simulator& sim)
 {
-  const SimulatorConfig defaults;
-  const SensorConfig& sc = sim.config().sensor;
-  const double beam_px = LightingConfig::kReferenceBeamSigmaRad * sc.camera.fx;
-  const double defocus_px = sim.diameterOfConfusion(LightingConfig::kReferenceDistanceM) / 4.0 / sc.pixel_size_m;
+  const SimulatorParams defaults;
+  const SensorParams& sc = sim.params().sensor;
+  const double beam_px = LightingParams::kReferenceBeamSigmaRad * sc.camera.fx;
+  const double defocus_px = sim.diameterOfConfusion(LightingParams::kReferenceDistanceM) / 4.0 / sc.pixel_size_m;
   const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
-  const double diffraction_px = 0.42 * sim.config().projector.wavelength_nm * 1e-9 * image_dist /
+  const double diffraction_px = 0.42 * sim.params().projector.wavelength_nm * 1e-9 * image_dist /
                                 sc.aperture_diameter_m / sc.pixel_size_m;
   const double var = beam_px * beam_px + defocus_px * defocus_px + diffraction_px * diffraction_px + 1.0 / 12.0;
-  const double background = LightingConfig::kSunFullScaleDn * 0.05 * 0.55;
+  const double background = LightingParams::kSunFullScaleDn * 0.05 * 0.55;
   const double peak = defaults.lighting.dot_to_sun_ratio * background * beam_px * beam_px / var;
   return peak / std::sqrt(sc.read_noise_dn * sc.read_noise_dn + sc.gain_dn_per_electron * background);
 }
@@ -194,7 +194,7 @@ TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
     for (double beam : {0.0014, 0.002, 0.0028, 0.0038})
       for (int c = 0; c < 3; ++c)  // the sunlit conditions
       {
-        SimulatorConfig cfg = config(beam, kConditions[c], true, ++seed);
+        SimulatorParams cfg = config(beam, kConditions[c], true, ++seed);
         cfg.keep_linear = true;
         const Simulator sim(cfg);
         worst_snr = worstCaseSnr(sim);
@@ -253,7 +253,7 @@ TEST(SpotDetectorSim, GreenMineralBlobs)
 {
   SpotDetector fast;
   Score s;
-  SimulatorConfig cfg = config(0.002, kConditions[1], true, 99);
+  SimulatorParams cfg = config(0.002, kConditions[1], true, 99);
   cfg.clutter.green_blobs = 10;
   const Simulator sim(cfg);
   const SimFrame f = sim.render(0.2);

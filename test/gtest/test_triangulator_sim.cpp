@@ -92,9 +92,9 @@ struct Tally
   double rmsRel() const { return std::sqrt(sum2_rel / std::max(1, points)); }
 };
 
-SimulatorConfig simConfig(double distance, double roll, double relief, uint32_t seed)
+SimulatorParams simConfig(double distance, double roll, double relief, uint32_t seed)
 {
-  SimulatorConfig c;
+  SimulatorParams c;
   c.rock.distance_m = distance;
   c.rock.relief_m = relief;
   c.rock.seed = seed;
@@ -139,7 +139,7 @@ TEST(TriangulatorSim, DepthAndIdentificationOnTheSimulatedRock)
 // (and some hide behind the step). Never a wrong beam.
 TEST(TriangulatorSim, StepInTheRock)
 {
-  SimulatorConfig c = simConfig(1.4, 0.087, 0.05, 3);
+  SimulatorParams c = simConfig(1.4, 0.087, 0.05, 3);
   c.rock.step_height_m = 0.25;
   c.rock.step_x_m = 0.0;
   const Simulator sim(c);
@@ -272,7 +272,7 @@ TEST(TriangulatorSim, SequenceWithTrackingPrior)
   for (const Case& cs : {Case{"rolled grid", 0.087, 0.0}, Case{"aligned grid", 0.0, 0.0},
                          Case{"aligned grid, object 0.4 m in front", 0.0, -0.4}})
   {
-    SimulatorConfig c = simConfig(1.5, cs.roll, 0.15, 7);
+    SimulatorParams c = simConfig(1.5, cs.roll, 0.15, 7);
     c.rock.step_height_m = cs.step;
     c.rock.step_x_m = 0.05;
     c.motion.jitter_translation_m = 0.01;

@@ -217,7 +217,7 @@ double targetRadiance(const SceneInputs& in, double irradiance, double albedo, d
 // --- Brightness for the simulator ------------------------------------------
 // sun_level: 0 = night, 1 = the brightest sun of the study (F50 at the highest
 // elevation, incidence sun_incidence_min_deg), matching
-// LightingConfig::sun_level. The dot is the peak of the projected spot.
+// LightingParams::sun_level. The dot is the peak of the projected spot.
 enum class RadiometryModel
 {
   kCorrected,      // LED optical power from 683 V(lambda); sqrt shot noise
@@ -249,10 +249,10 @@ DotSunElectrons dotAndSunElectrons(const SceneAnalysis& analysis, double albedo,
 // Ratio of the dot's peak photo-electrons to the sunlit surface's at
 // sun_level = 1 (independent of albedo; the BRDF cancels because the study's
 // LED and brightest-sun incidences are both 10 deg). This is what
-// LightingConfig::dot_to_sun_ratio means when the simulator renders radiance
+// LightingParams::dot_to_sun_ratio means when the simulator renders radiance
 // in photo-electron units. It scales as 1 / dot_sigma^2.
 //
-// For the simulator (LightingConfig::dot_to_sun_ratio refers to its 2 mrad
+// For the simulator (LightingParams::dot_to_sun_ratio refers to its 2 mrad
 // beam at 1.5 m, i.e. a dot of sigma 3 mm; sun_level 1 = this sun_level 1):
 //   dotToSunRatio(SceneInputs(), kStudyAsStated, 3e-3) = 3.66: the brightness
 //     the study claims (its worst-case "SNR 32" is this ratio x 9 for its

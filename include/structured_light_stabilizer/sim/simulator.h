@@ -16,7 +16,7 @@
 // through the rock origin at `distance_m`.
 //
 // Radiometry (linear sensor, 8-bit counts "DN"): a sunlit Lambertian surface
-// of reflectance rho facing the sun gives rho * LightingConfig::kSunFullScaleDn * sun_level
+// of reflectance rho facing the sun gives rho * LightingParams::kSunFullScaleDn * sun_level
 // in each channel (times cos(sun incidence) + sky); a dot's peak radiance on
 // the rock is dot_to_sun_ratio times the sunlit radiance of the same surface
 // facing the sun at sun_level = 1 (at 1.5 m from the projector, normal
@@ -44,7 +44,7 @@ namespace structured_light_stabilizer
 {
 
 // Motion of the rig relative to the rock, a deterministic function of time.
-struct RigMotionConfig
+struct RigMotionParams
 {
   double jitter_translation_m = 0.0;   // wind jitter amplitude, per axis
   double jitter_rotation_rad = 0.0;    // wind jitter amplitude, per axis
@@ -58,7 +58,7 @@ struct RigMotionConfig
   double return_period_s = 0.0;
 };
 
-struct RockConfig
+struct RockParams
 {
   double distance_m = 1.5;        // distance of the rock's mean plane from the camera at t=0
   double width_m = 2.0;           // extent of the target (<= 2 x 2 m)
@@ -77,7 +77,7 @@ struct RockConfig
   uint32_t seed = 1;
 };
 
-struct ProjectorConfig
+struct ProjectorParams
 {
   int rows = 10;
   int cols = 10;
@@ -94,7 +94,7 @@ struct ProjectorConfig
   double power_scale = 1.0;          // relative dot brightness (1 = the study's LED design)
 };
 
-struct SensorConfig
+struct SensorParams
 {
   CameraModel camera = CameraModel::studyDesign();
   double pixel_size_m = 12e-6;
@@ -111,7 +111,7 @@ struct SensorConfig
   bool natural_vignetting = true;
 };
 
-struct LightingConfig
+struct LightingParams
 {
   // DN of a white Lambertian surface facing the sun at sun_level = 1 (exposure
   // 1): the brightest red rock (reflectance 0.45) reaches 230 DN in red.
@@ -144,21 +144,21 @@ struct LightingConfig
   double sky_ambient = 0.08;
 };
 
-struct ClutterConfig
+struct ClutterParams
 {
   int green_specks = 0;        // small green specks (1-3 px)
   int olive_minerals = 0;      // olive/green-brown patches (should not be detected)
   int green_blobs = 0;         // dot-sized green blobs on the rock (spurious dots)
 };
 
-struct SimulatorConfig
+struct SimulatorParams
 {
-  SensorConfig sensor;
-  RockConfig rock;
-  ProjectorConfig projector;
-  LightingConfig lighting;
-  RigMotionConfig motion;
-  ClutterConfig clutter;
+  SensorParams sensor;
+  RockParams rock;
+  ProjectorParams projector;
+  LightingParams lighting;
+  RigMotionParams motion;
+  ClutterParams clutter;
   uint32_t noise_seed = 42;
   // The rock's shading is ray-cast on every rock_subsample-th pixel (centres
   // of n x n blocks) and interpolated bilinearly in between; 1 = every pixel.
@@ -191,17 +191,17 @@ class Simulator
 {
 public:
   // Throws std::invalid_argument with the reason when the config is invalid.
-  explicit Simulator(const SimulatorConfig& config);
+  explicit Simulator(const SimulatorParams& config);
 
   SimFrame render(double t) const;
 
   // Replaces the parts of the config that do not change the scene (lighting,
   // noise, motion, keep_linear) without rebuilding it; for live tuning.
   // Throws std::invalid_argument when the result would be invalid.
-  void updateLive(const SimulatorConfig& config);
+  void updateLive(const SimulatorParams& config);
 
-  const SimulatorConfig& config() const { return config_; }
-  const CameraModel& camera() const { return config_.sensor.camera; }
+  const SimulatorParams& params() const { return params_; }
+  const CameraModel& camera() const { return params_.sensor.camera; }
   // The exact projector calibration in the camera frame (rig-fixed, constant).
   const ProjectorCalibration& projector() const { return projector_; }
   // True camera motion since t = 0 (p_cur = delta * p_ref).
@@ -220,7 +220,7 @@ public:
   double diameterOfConfusion(double distance_m) const;
 
 private:
-  SimulatorConfig config_;
+  SimulatorParams params_;
   ProjectorCalibration projector_;
   struct Impl;
   std::shared_ptr<const Impl> impl_;
