@@ -1,4 +1,5 @@
-// Physically grounded scene simulator (SPEC §4), ROS-free and deterministic.
+// Physically grounded scene simulator (docs/simulator.md), ROS-free and
+// deterministic.
 //
 // Contract: render(t) gives a bgr8 frame of the rock as seen by the study's
 // camera at time t (seconds), plus the ground truth for that frame: the hit
@@ -7,7 +8,8 @@
 // (distorted) pixel projection, and the true camera motion since t = 0 as
 // p_cur = delta * p_ref (the PoseDelta convention). The camera and the
 // projector form one rigid rig; the rock is fixed in the world. The same
-// config (seed included) gives byte-identical frames.
+// params (seed included) give byte-identical frames, whatever the number of
+// threads.
 //
 // Frames: the rock (world) frame has its z axis along the normal of the
 // rock's mean plane, pointing away from the camera; the surface is the height
@@ -25,6 +27,16 @@
 // with cos(incidence) / distance^2 and is spread in the image by the beam
 // footprint, the defocus blur (DoC / 4 as a Gaussian sigma: the second moment
 // of a uniform disc of diameter DoC), diffraction and the pixel box.
+//
+// Where each part lives (src/sim/): rock_surface (height field, albedo,
+// shading), ray_cast (rays against the height field), rock_render (the rock's
+// radiance per pixel), projector_dots (beams, their footprints and ground
+// truth), clutter (patches on the rock), splat (image-space Gaussians),
+// optics (defocus, diffraction, vignetting), sensor (noise, quantisation),
+// rig_motion (the camera's motion), simulator (the frame, stage by stage).
+//
+// Thread-safety: render() and the other const members may run concurrently;
+// updateLive() may not run concurrently with anything on the same object.
 #pragma once
 
 #include <cstdint>
@@ -38,167 +50,36 @@
 
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/projector_calibration.h"
-#include "structured_light_stabilizer/sim/scene_analysis.h"
+#include "structured_light_stabilizer/sim/simulator_params.h"
 
 namespace structured_light_stabilizer
 {
 
-// Motion of the rig relative to the rock, a deterministic function of time.
-struct RigMotionParams
-{
-  double jitter_translation_m = 0.0;   // wind jitter amplitude, per axis
-  double jitter_rotation_rad = 0.0;    // wind jitter amplitude, per axis
-  double jitter_frequency_hz = 0.7;    // base frequency; axes use incommensurate multiples
-  Eigen::Vector3d drift_velocity_mps = Eigen::Vector3d::Zero();        // slow drift, camera frame at t=0
-  Eigen::Vector3d drift_angular_velocity_radps = Eigen::Vector3d::Zero();
-  double step_period_s = 0.0;          // 0 = no steps; else a step every period
-  Eigen::Vector3d step_translation_m = Eigen::Vector3d::Zero();
-  // When > 0, the motion is periodic with this period and returns exactly to
-  // the reference pose at every multiple of it (used by the return-to-identity test).
-  double return_period_s = 0.0;
-};
-
-struct RockParams
-{
-  double distance_m = 1.5;        // distance of the rock's mean plane from the camera at t=0
-  double width_m = 2.0;           // extent of the target (<= 2 x 2 m)
-  double height_m = 2.0;
-  double relief_m = 0.15;         // peak-to-peak relief of the height field (0 = flat board)
-  double albedo_min = 0.05;       // reddish textured albedo range (study §1.1.3)
-  double albedo_max = 0.45;
-  double texture_scale_m = 0.02;  // size of the finest albedo features
-  double tilt_x_rad = 0.0;        // orientation of the mean plane (0 = facing the camera)
-  double tilt_y_rad = 0.0;
-  // Optional straight step along y at x = step_x_m: the side x > step_x_m lies
-  // step_height_m farther from the camera (negative: nearer). For occlusion
-  // and shadow tests; the step is one height-grid cell wide.
-  double step_height_m = 0.0;
-  double step_x_m = 0.0;
-  uint32_t seed = 1;
-};
-
-struct ProjectorParams
-{
-  int rows = 10;
-  int cols = 10;
-  Eigen::Vector3d origin_m = Eigen::Vector3d(0.25, 0.0, 0.0);  // baseline from the camera centre
-  double pitch_x_rad = 0.035;
-  double pitch_y_rad = 0.035;
-  double roll_rad = 0.087;         // in-plane rotation of the grid (5 deg by default)
-  double converge_distance_m = 1.5;  // the central beam crosses the optical axis here
-  double wavelength_nm = 520.0;
-  // Gaussian divergence of each beam (1-sigma, rad): a dot's sigma on the rock
-  // grows with its distance from the projector, so its image size stays about
-  // 2 px at any depth (3 mm at 1.5 m -> 2.0 px with fx = 1011.7 px).
-  double beam_sigma_rad = 0.002;
-  double power_scale = 1.0;          // relative dot brightness (1 = the study's LED design)
-};
-
-struct SensorParams
-{
-  CameraModel camera = CameraModel::studyDesign();
-  double pixel_size_m = 12e-6;
-  double focal_length_m = 12.14e-3;
-  double focus_distance_m = 1.0;
-  double aperture_diameter_m = 1.9e-3;
-  double read_noise_dn = 1.0;      // std dev in 8-bit counts (0 = off)
-  bool shot_noise = true;
-  // Conversion gain, DN per photo-electron: shot noise variance = signal_dn * gain.
-  // 0.01 = 100 e-/DN, a 25.5 ke- full well over the 8-bit range.
-  double gain_dn_per_electron = 0.01;
-  // Natural vignetting: image irradiance falls as cos^4 of the off-axis angle
-  // (the study's eq. 2.9 factor; 0.45 in the corners of this 53 deg lens).
-  bool natural_vignetting = true;
-};
-
-struct LightingParams
-{
-  // DN of a white Lambertian surface facing the sun at sun_level = 1 (exposure
-  // 1): the brightest red rock (reflectance 0.45) reaches 230 DN in red.
-  static constexpr double kSunFullScaleDn = 510.0;
-  // dot_to_sun_ratio refers to a beam of this divergence hitting the rock at
-  // this distance at normal incidence (a dot of sigma 3 mm on the rock).
-  static constexpr double kReferenceBeamSigmaRad = 0.002;
-  static constexpr double kReferenceDistanceM = 1.5;
-
-  // The dot-versus-sun brightness of the study's design (scene_analysis.h,
-  // dotToSunRatio() for the reference dot above): kStudyAsStated = 3.66 (the
-  // brightness the study claims: its worst case "SNR 32" for a 1 mm dot),
-  // kCorrected = 0.0045 (the physics of its LED: dots invisible in daylight).
-  static double sceneDotToSunRatio(RadiometryModel model);
-
-  // 0 = night, 1 = the study's brightest case (F50 = 341 W/m^2, optimal BRDF).
-  double sun_level = 0.5;
-  // Ratio of a dot's peak radiance (green channel) to the radiance of the
-  // same surface facing the sun at sun_level = 1, both at normal incidence.
-  // Default: the study as stated (above).
-  double dot_to_sun_ratio = sceneDotToSunRatio(RadiometryModel::kStudyAsStated);
-  double exposure = 1.0;  // global scale applied before quantisation
-
-  // Scene lighting, baked into the rock's shading when the simulator is built
-  // (updateLive() keeps the built ones). Direction towards the sun in the
-  // rock frame (z away from the camera), and the diffuse sky light as a
-  // fraction of the direct sun on a surface facing it (faces turned away from
-  // the sun are dim, not black).
-  Eigen::Vector3d sun_direction = Eigen::Vector3d(-0.40, -0.45, -0.80).normalized();
-  double sky_ambient = 0.08;
-};
-
-struct ClutterParams
-{
-  int green_specks = 0;        // small green specks (1-3 px)
-  int olive_minerals = 0;      // olive/green-brown patches (should not be detected)
-  int green_blobs = 0;         // dot-sized green blobs on the rock (spurious dots)
-};
-
-struct SimulatorParams
-{
-  SensorParams sensor;
-  RockParams rock;
-  ProjectorParams projector;
-  LightingParams lighting;
-  RigMotionParams motion;
-  ClutterParams clutter;
-  uint32_t noise_seed = 42;
-  // The rock's shading is ray-cast on every rock_subsample-th pixel (centres
-  // of n x n blocks) and interpolated bilinearly in between; 1 = every pixel.
-  // The rock texture and shading vary over >= 4 mm cells (>= 2.7 px at
-  // 1.5 m), so 2 loses little and costs a quarter. Dots, clutter, noise and
-  // all ground truth are per pixel and exact whatever the value. In [1, 4].
-  int rock_subsample = 2;
-  // Keep the noise-free linear radiance (CV_32FC3, DN, before noise, clipping
-  // and quantisation) in SimFrame::linear; for tests.
-  bool keep_linear = false;
-
-  // Empty when usable, otherwise why not.
-  std::string validate() const;
-};
-
 struct SimFrame
 {
   double t = 0.0;
-  cv::Mat image;                          // CV_8UC3, bgr8
-  std::vector<Eigen::Vector3d> points;    // per beam, camera frame at t; NaN if not visible
-  std::vector<cv::Point2d> pixels;        // per beam, distorted pixel of the hit point; NaN if not visible
-  std::vector<double> blur_sigma_px;      // per beam, Gaussian sigma of the rendered dot
-  std::vector<uint8_t> visible;           // per beam, 1 when the dot is in view and unoccluded
-  std::vector<double> peak_dn;            // per beam, noise-free peak of the dot in the green channel (0 if not visible)
-  cv::Mat linear;                         // CV_32FC3 noise-free radiance in DN, only with keep_linear
+  cv::Mat image;                        // CV_8UC3, bgr8
+  std::vector<Eigen::Vector3d> points;  // per beam, camera frame at t; NaN if not visible
+  std::vector<cv::Point2d> pixels;      // per beam, distorted pixel of the hit point; NaN if not visible
+  std::vector<double> blur_sigma_px;    // per beam, Gaussian sigma of the rendered dot
+  std::vector<uint8_t> visible;         // per beam, 1 when the dot is in view and unoccluded
+  std::vector<double> peak_dn;          // per beam, noise-free peak of the dot in the green channel (0 if not visible)
+  cv::Mat linear;                       // CV_32FC3 noise-free radiance in DN, only with keep_linear
   Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();  // p_cur = delta * p_ref, ref = t=0
 };
 
 class Simulator
 {
 public:
-  // Throws std::invalid_argument with the reason when the config is invalid.
-  explicit Simulator(const SimulatorParams& config);
+  // Throws std::invalid_argument with the reason when the params are invalid.
+  explicit Simulator(const SimulatorParams& params);
 
   SimFrame render(double t) const;
 
-  // Replaces the parts of the config that do not change the scene (lighting,
+  // Replaces the parts of the params that do not change the scene (lighting,
   // noise, motion, keep_linear) without rebuilding it; for live tuning.
   // Throws std::invalid_argument when the result would be invalid.
-  void updateLive(const SimulatorParams& config);
+  void updateLive(const SimulatorParams& params);
 
   const SimulatorParams& params() const { return params_; }
   const CameraModel& camera() const { return params_.sensor.camera; }
@@ -211,18 +92,18 @@ public:
 
   // Ray-casts a ray given in the camera frame at time t onto the rock.
   // Returns false when it misses. The hit point is in the camera frame at t.
-  bool intersect(double t, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction,
-                 Eigen::Vector3d* hit) const;
+  bool intersect(double t, const Eigen::Vector3d& origin, const Eigen::Vector3d& direction, Eigen::Vector3d* hit) const;
   // Signed distance along the rock normal of a world point from the surface (0 = on it).
   double surfaceOffset(const Eigen::Vector3d& p_world) const;
 
-  // Diameter of confusion (m, on the sensor) of a point at distance r (study §2.1.1.4).
+  // Diameter of confusion (m, on the sensor) of a point at distance r
+  // (docs/study.md §2.1.1.4).
   double diameterOfConfusion(double distance_m) const;
 
 private:
   SimulatorParams params_;
   ProjectorCalibration projector_;
-  struct Impl;
+  struct Impl;  // the built scene (rock, sample lattice, clutter), shared by copies
   std::shared_ptr<const Impl> impl_;
 };
 

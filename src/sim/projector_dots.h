@@ -1,0 +1,27 @@
+// The projector's dots: each beam ray-cast onto the rock, its ground truth
+// (hit point, pixel, visibility, blur, peak) and the splat of its light in
+// the image. Projector colours, strobing or per-dot optics would change this
+// part (and kDotResponseBgr for the colour).
+#pragma once
+
+#include <vector>
+
+#include "frame_geometry.h"
+#include "rock_surface.h"
+#include "splat.h"
+#include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/sim/simulator.h"
+
+namespace structured_light_stabilizer
+{
+namespace sim
+{
+
+// Fills frame's per-beam ground truth (points, pixels, blur_sigma_px,
+// visible, peak_dn; NaN / 0 for beams that miss or are hidden) and appends
+// the splat of every visible dot.
+void renderDots(const SimulatorParams& params, const ProjectorCalibration& projector, const RockSurface& rock,
+                const FrameGeometry& g, SimFrame* frame, std::vector<Splat>* splats);
+
+}  // namespace sim
+}  // namespace structured_light_stabilizer

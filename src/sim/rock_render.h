@@ -1,0 +1,50 @@
+// The rock's sunlit radiance in the image: ray casts through a lattice of
+// rock samples (every rock_subsample-th pixel), upsampled bilinearly to the
+// full frame. Only the geometry of light leaving the rock lives here; what
+// the rock reflects is RockSurface's, what the sensor does with it sensor.h's.
+#pragma once
+
+#include <cstddef>
+#include <vector>
+
+#include "frame_geometry.h"
+#include "rock_surface.h"
+#include "structured_light_stabilizer/camera_model.h"
+
+namespace structured_light_stabilizer
+{
+namespace sim
+{
+
+// Rock sample lattice: sample (i, j) is the ray through pixel
+// (sub * i + (sub - 1) / 2, sub * j + (sub - 1) / 2). Built once per Simulator.
+struct RockSampling
+{
+  RockSampling(const CameraModel& cam, int subsample);
+
+  int sub = 1, rw = 0, rh = 0;
+  std::vector<float> ray_lut;  // (x/z, y/z) per rock sample, only with lens distortion
+  // Full-resolution pixel u -> samples i0, i1 and the weight of i1 (same for rows).
+  std::vector<int> up_i0, up_i1, up_j0, up_j1;
+  std::vector<float> up_wx, up_wy;
+
+  // Floats per row of sample radiance: B, G, R per sample plus one of slack.
+  size_t stride() const { return 3 * static_cast<size_t>(rw) + 1; }
+
+  // Row v of the full-resolution frame (3 * width floats into L) from the
+  // samples (rows of stride()); T is scratch of 3 * rw floats. The three
+  // buffers must not overlap (restrict: lets the compiler vectorise the
+  // interleaved loops without run-time overlap checks).
+  void upsampleRow(const float* __restrict samples, int v, int width, float* __restrict L, float* __restrict T) const;
+};
+
+// Renders the radiance (B, G, R in DN, before noise) of every rock sample at
+// one instant. sun: DN of a white surface facing the sun (exposure included),
+// > 0. The result is in a buffer kept per calling thread between frames (a
+// fresh 3 MB buffer per frame costs its page faults): valid until that
+// thread's next call.
+const float* renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const CameraModel& cam,
+                               const FrameGeometry& g, double sun, bool vignetting);
+
+}  // namespace sim
+}  // namespace structured_light_stabilizer

@@ -1,0 +1,129 @@
+#include "structured_light_stabilizer/sim/simulator_params.h"
+
+#include <cmath>
+#include <sstream>
+
+namespace structured_light_stabilizer
+{
+
+namespace
+{
+
+bool finitePositive(double v)
+{
+  return std::isfinite(v) && v > 0.0;
+}
+bool finiteNonNegative(double v)
+{
+  return std::isfinite(v) && v >= 0.0;
+}
+
+// Each check below appends "reason; " to why.
+
+void checkSensor(const SensorParams& sensor, std::ostringstream& why)
+{
+  const std::string cam = sensor.camera.validate();
+  if (!cam.empty())
+    why << "camera: " << cam << "; ";
+  if (!finitePositive(sensor.pixel_size_m) || !finitePositive(sensor.focal_length_m) ||
+      !finitePositive(sensor.aperture_diameter_m))
+    why << "pixel size, focal length and aperture must be positive; ";
+  if (!(sensor.focus_distance_m > sensor.focal_length_m) || !std::isfinite(sensor.focus_distance_m))
+    why << "focus distance " << sensor.focus_distance_m << " m must exceed the focal length; ";
+  if (!finiteNonNegative(sensor.read_noise_dn))
+    why << "read_noise_dn must be >= 0; ";
+  if (!finitePositive(sensor.gain_dn_per_electron))
+    why << "gain_dn_per_electron must be > 0; ";
+}
+
+void checkRock(const RockParams& rock, std::ostringstream& why)
+{
+  if (!(rock.distance_m >= 0.2 && rock.distance_m <= 20.0))
+    why << "rock distance " << rock.distance_m << " m is outside [0.2, 20]; ";
+  if (!(rock.width_m > 0.0 && rock.width_m <= 5.0 && rock.height_m > 0.0 && rock.height_m <= 5.0))
+    why << "rock size " << rock.width_m << " x " << rock.height_m << " m is outside (0, 5]; ";
+  if (!(rock.relief_m >= 0.0 && rock.relief_m <= 1.0))
+    why << "rock relief " << rock.relief_m << " m is outside [0, 1]; ";
+  if (!std::isfinite(rock.step_height_m) || !std::isfinite(rock.step_x_m) || std::abs(rock.step_height_m) > 1.0)
+    why << "rock step height must be finite and within [-1, 1] m; ";
+  if (!(rock.relief_m + std::abs(rock.step_height_m) < 0.8 * rock.distance_m))
+    why << "rock relief must stay well in front of the camera (< 0.8 x distance); ";
+  if (!(rock.albedo_min >= 0.0 && rock.albedo_min <= rock.albedo_max && rock.albedo_max <= 1.0))
+    why << "albedo range [" << rock.albedo_min << ", " << rock.albedo_max << "] must satisfy 0 <= min <= max <= 1; ";
+  if (!(rock.texture_scale_m >= 0.002 && rock.texture_scale_m <= 1.0))
+    why << "texture_scale_m " << rock.texture_scale_m << " is outside [0.002, 1]; ";
+  if (!(std::abs(rock.tilt_x_rad) < 1.2 && std::abs(rock.tilt_y_rad) < 1.2))
+    why << "rock tilt must stay below 1.2 rad; ";
+}
+
+void checkProjector(const ProjectorParams& projector, std::ostringstream& why)
+{
+  if (projector.rows < 1 || projector.cols < 1 || projector.rows > 100 || projector.cols > 100)
+    why << "projector grid " << projector.rows << " x " << projector.cols << " is outside [1, 100]; ";
+  if (!projector.origin_m.allFinite() || !std::isfinite(projector.pitch_x_rad) ||
+      !std::isfinite(projector.pitch_y_rad) || !std::isfinite(projector.roll_rad))
+    why << "projector origin, pitch and roll must be finite; ";
+  if (!finitePositive(projector.converge_distance_m))
+    why << "projector converge distance must be positive; ";
+  if (!finiteNonNegative(projector.beam_sigma_rad) || projector.beam_sigma_rad > 0.1)
+    why << "beam_sigma_rad " << projector.beam_sigma_rad << " is outside [0, 0.1]; ";
+  if (!finiteNonNegative(projector.power_scale))
+    why << "power_scale must be >= 0; ";
+}
+
+void checkLighting(const LightingParams& lighting, std::ostringstream& why)
+{
+  if (!finiteNonNegative(lighting.sun_level) || !finiteNonNegative(lighting.dot_to_sun_ratio) ||
+      !finitePositive(lighting.exposure))
+    why << "sun_level, dot_to_sun_ratio must be >= 0 and exposure > 0; ";
+  if (!lighting.sun_direction.allFinite() || !(lighting.sun_direction.norm() > 1e-9) ||
+      !finiteNonNegative(lighting.sky_ambient) || lighting.sky_ambient > 1.0)
+    why << "sun_direction must be a finite non-zero vector and sky_ambient in [0, 1]; ";
+}
+
+void checkMotion(const RigMotionParams& motion, std::ostringstream& why)
+{
+  if (!finiteNonNegative(motion.jitter_translation_m) || !finiteNonNegative(motion.jitter_rotation_rad) ||
+      !finiteNonNegative(motion.jitter_frequency_hz) || !finiteNonNegative(motion.step_period_s) ||
+      !finiteNonNegative(motion.return_period_s) || !motion.drift_velocity_mps.allFinite() ||
+      !motion.drift_angular_velocity_radps.allFinite() || !motion.step_translation_m.allFinite())
+    why << "motion amplitudes, frequency and periods must be finite and >= 0; ";
+}
+
+void checkClutter(const ClutterParams& clutter, std::ostringstream& why)
+{
+  if (clutter.green_specks < 0 || clutter.olive_minerals < 0 || clutter.green_blobs < 0 ||
+      clutter.green_specks > 100000 || clutter.olive_minerals > 100000 || clutter.green_blobs > 100000)
+    why << "clutter counts must be in [0, 100000]; ";
+}
+
+}  // namespace
+
+std::string SimulatorParams::validate() const
+{
+  std::ostringstream why;
+  checkSensor(sensor, why);
+  checkRock(rock, why);
+  checkProjector(projector, why);
+  checkLighting(lighting, why);
+  checkMotion(motion, why);
+  if (rock_subsample < 1 || rock_subsample > 4)
+    why << "rock_subsample " << rock_subsample << " is outside [1, 4]; ";
+  checkClutter(clutter, why);
+  std::string s = why.str();
+  if (s.size() >= 2)
+    s.resize(s.size() - 2);  // the last "; "
+  return s;
+}
+
+double LightingParams::sceneDotToSunRatio(RadiometryModel model)
+{
+  // analyseScene() integrates spectra: compute each model once.
+  static const double study =
+      dotToSunRatio(SceneInputs(), RadiometryModel::kStudyAsStated, kReferenceBeamSigmaRad * kReferenceDistanceM);
+  static const double corrected =
+      dotToSunRatio(SceneInputs(), RadiometryModel::kCorrected, kReferenceBeamSigmaRad * kReferenceDistanceM);
+  return model == RadiometryModel::kStudyAsStated ? study : corrected;
+}
+
+}  // namespace structured_light_stabilizer
