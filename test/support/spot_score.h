@@ -33,7 +33,7 @@ struct Score
   }
 };
 
-Score score(const Spots& spots, const std::vector<cv::Point2d>& truth, double max_dist = 3.0)
+inline Score score(const Spots& spots, const std::vector<cv::Point2d>& truth, double max_dist = 3.0)
 {
   struct Pair
   {
