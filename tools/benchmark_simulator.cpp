@@ -82,9 +82,9 @@ int main(int argc, char** argv)
       // CPU time as well (all threads): on a shared machine the wall clock
       // includes waiting.
       const double cpu_ms = 1000.0 * (std::clock() - c0) / CLOCKS_PER_SEC / frames;
-      std::cout << c.name << " (" << threads << (threads > 1 ? " threads" : " thread") << "): construction "
-                << build_ms << " ms, render " << ms << " ms/frame wall, " << cpu_ms << " ms/frame CPU (" << frames
-                << " frames, " << visible << " dots visible in frame 0)\n";
+      std::cout << c.name << " (" << threads << (threads > 1 ? " threads" : " thread") << "): construction " << build_ms
+                << " ms, render " << ms << " ms/frame wall, " << cpu_ms << " ms/frame CPU (" << frames << " frames, "
+                << visible << " dots visible in frame 0)\n";
     }
   }
   return 0;

@@ -16,6 +16,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
+#include "structured_light_stabilizer/detail/math.h"
 #include "structured_light_stabilizer/sim/scene_analysis.h"
 
 namespace sls = structured_light_stabilizer;
@@ -35,7 +36,7 @@ void usage(std::ostream& os)
 void printSimulatorRecipe(const sls::SceneAnalysis& a)
 {
   const sls::SceneInputs& in = a.inputs;
-  const double kDeg = 3.14159265358979323846 / 180.0;
+  const double kDeg = sls::detail::kPi / 180.0;
   const double stated = sls::dotToSunRatio(a, sls::RadiometryModel::kStudyAsStated);
   const double weakest = a.irradiance_latitude.min * std::cos(in.sun_incidence_max_deg * kDeg) /
                          (a.irradiance_latitude.max * std::cos(in.sun_incidence_min_deg * kDeg));
@@ -43,11 +44,12 @@ void printSimulatorRecipe(const sls::SceneAnalysis& a)
               a.irradiance_latitude.max, in.sun_incidence_min_deg);
   std::printf("  dot_to_sun_ratio = dot peak / sunlit rock, photo-electrons, at sun_level 1 (any albedo):\n");
   std::printf("    study as stated (= its 'SNR 32')       : %.4g\n", stated);
-  for (double sigma : { 1e-3, 2e-3, 3e-3 })
+  for (double sigma : {1e-3, 2e-3, 3e-3})
     std::printf("    corrected, dot sigma %.0f mm on the rock : %.4g\n", sigma * 1e3,
                 sls::dotToSunRatio(a, sls::RadiometryModel::kCorrected, sigma));
-  std::printf("  sun_level: study's worst case 1.0 (F50 max, %.0f deg); weakest sun %.3f (F50 min, %.0f deg); night 0\n",
-              in.sun_incidence_min_deg, weakest, in.sun_incidence_max_deg);
+  std::printf(
+      "  sun_level: study's worst case 1.0 (F50 max, %.0f deg); weakest sun %.3f (F50 min, %.0f deg); night 0\n",
+      in.sun_incidence_min_deg, weakest, in.sun_incidence_max_deg);
   std::printf("  study's noise model (noise = sun electrons): SNR = ratio / sun_level: %.0f at 1.0, %.0f at %.3f\n",
               stated, stated / weakest, weakest);
   const double t = a.saturating_exposure_s;
@@ -58,10 +60,10 @@ void printSimulatorRecipe(const sls::SceneAnalysis& a)
   std::printf("  corrected, exposure %.2f ms (brightest pixel at the full well):\n", t * 1e3);
   std::printf("    worst (albedo %.2f, sun_level 1)       : sun %.0f e-, dot %.0f e-, SNR %.1f\n", in.albedo_min,
               worst.sun_e, worst.dot_e, worst.snr());
-  std::printf("    weakest sun (albedo %.2f, level %.3f) : sun %.0f e-, dot %.0f e-, SNR %.1f\n", in.albedo_max, weakest,
-              best.sun_e, best.dot_e, best.snr());
+  std::printf("    weakest sun (albedo %.2f, level %.3f) : sun %.0f e-, dot %.0f e-, SNR %.1f\n", in.albedo_max,
+              weakest, best.sun_e, best.dot_e, best.snr());
   std::printf("  image SNR of a dot of ratio r over B e- of sunlit rock: r B / sqrt((1 + r) B + read^2)\n");
-  for (double b : { 2e3, 2e4 })
+  for (double b : {2e3, 2e4})
     std::printf("    B = %.0f e-, read 100 e-: ratio for SNR 32 = %.3g, for SNR 348 = %.3g\n", b,
                 sls::ratioForSnr(32, b, 100), sls::ratioForSnr(348, b, 100));
 }

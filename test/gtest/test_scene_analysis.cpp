@@ -1,4 +1,4 @@
-// Scene analysis (study §2.1): every value the study states is either
+// Scene analysis (docs/study.md §2.1): every value the study states is either
 // reproduced to the precision it is printed with, or the test reproduces the
 // study's slip from the module's building blocks (to show where the number
 // comes from) and asserts the correct value.
@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/detail/math.h"
 #include "structured_light_stabilizer/sim/scene_analysis.h"
 
 using namespace structured_light_stabilizer;
@@ -20,12 +21,15 @@ using namespace structured_light_stabilizer;
 namespace
 {
 
-constexpr double kPi = 3.14159265358979323846;
+using structured_light_stabilizer::detail::kPi;
 // The study's constants (§2.1.3.5); the module uses CODATA.
 constexpr double kStudyH = 6.6263e-34;
 constexpr double kStudyC = 3e8;
 
-double deg(double d) { return d * kPi / 180.0; }
+double deg(double d)
+{
+  return d * kPi / 180.0;
+}
 
 // Tolerance of a number printed with the decimals of `text`.
 double halfUlp(const std::string& text)
@@ -35,12 +39,12 @@ double halfUlp(const std::string& text)
   return 0.5 * std::pow(10.0, -decimals) * (1.0 + 1e-9);
 }
 
-#define EXPECT_STATED(value, text)                                                              \
-  do                                                                                            \
-  {                                                                                             \
-    const double v_ = (value);                                                                  \
-    std::cout << "[ MEASURE ] " << #value << " = " << v_ << " (study " << text << ")\n";        \
-    EXPECT_NEAR(v_, std::stod(text), halfUlp(text)) << #value << " vs the study's " << text;    \
+#define EXPECT_STATED(value, text)                                                           \
+  do                                                                                         \
+  {                                                                                          \
+    const double v_ = (value);                                                               \
+    std::cout << "[ MEASURE ] " << #value << " = " << v_ << " (study " << text << ")\n";     \
+    EXPECT_NEAR(v_, std::stod(text), halfUlp(text)) << #value << " vs the study's " << text; \
   } while (0)
 
 // Inputs where F_sun is such that F at the semi-major axis is the study's 589
@@ -179,8 +183,9 @@ TEST(SceneAnalysis, TargetRadianceLabelsAndRange)
   const SceneInputs in;
   // (2.7) labels pure Lambertian "optimal" and the 90/10 mixture "worst"; the
   // text says the opposite, and the mixture is brighter everywhere: swapped.
-  for (double th : { 10.0, 30.0, 50.0 })
-    EXPECT_GT(targetRadiance(in, 100, 0.3, th, Brdf::kLambertianGlossy), targetRadiance(in, 100, 0.3, th, Brdf::kLambertian));
+  for (double th : {10.0, 30.0, 50.0})
+    EXPECT_GT(targetRadiance(in, 100, 0.3, th, Brdf::kLambertianGlossy),
+              targetRadiance(in, 100, 0.3, th, Brdf::kLambertian));
 
   const SceneAnalysis b = analyseScene(studyFluxInputs());
   // Maximum: the study carries F_a = 530 (rounded) into F50 = 530 sin 40.
@@ -340,7 +345,7 @@ TEST(SceneAnalysis, StudySnrCasesFromItsNoiseModel)
   EXPECT_STATED(0.0208 / n, "3.1");
   EXPECT_STATED(0.8457 / n, "126.8");
   EXPECT_NEAR(2.4556 / n, 368, 0.5);
-  EXPECT_NEAR(26.9410 / n, 4040, 5);  // printed to 3 significant digits
+  EXPECT_NEAR(26.9410 / n, 4040, 5);                                    // printed to 3 significant digits
   EXPECT_STATED(std::hypot(n, 0.13278 * (0.8457 / 5.3936)), "0.0219");  // unrounded Nen_CCD min
   EXPECT_STATED(std::hypot(n, 0.8457), "0.8457");
 
@@ -376,8 +381,9 @@ TEST(SceneAnalysis, CorrectedSnrCases)
   const DotSunElectrons w = dotAndSunElectrons(a, 0.05, 1.0);
   std::cout << "[ MEASURE ] corrected SNR case 1 = [" << a.snr_sun.min << ", " << a.snr_sun.max << "], case 2 = ["
             << a.snr_led_night.min << ", " << a.snr_led_night.max << "], case 3 = [" << a.snr_led_day.min << ", "
-            << a.snr_led_day.max << "] at ts = 0.1 s; case 3 worst within the full well = "
-            << a.snr_led_day_worst_unsaturated << " at " << a.saturating_exposure_s * 1e3 << " ms\n";
+            << a.snr_led_day.max
+            << "] at ts = 0.1 s; case 3 worst within the full well = " << a.snr_led_day_worst_unsaturated << " at "
+            << a.saturating_exposure_s * 1e3 << " ms\n";
   EXPECT_NEAR(a.snr_led_day.min, w.snr(), 1e-9 * w.snr());
   EXPECT_LE(a.snr_led_day.min, a.snr_led_day.max);
   // The sensor saturates at the study's exposure; an exposure that keeps the
@@ -396,8 +402,8 @@ TEST(SceneAnalysis, DotToSunRatioForTheSimulator)
   const double stated = dotToSunRatio(a, RadiometryModel::kStudyAsStated);
   std::cout << "[ MEASURE ] dot_to_sun_ratio corrected = " << corrected << ", study as stated = " << stated << "\n";
   // Independent of albedo and BRDF at sun_level 1 (both incidences are 10 deg).
-  for (double al : { 0.05, 0.2, 0.45 })
-    for (Brdf b : { Brdf::kLambertian, Brdf::kLambertianGlossy })
+  for (double al : {0.05, 0.2, 0.45})
+    for (Brdf b : {Brdf::kLambertian, Brdf::kLambertianGlossy})
       EXPECT_NEAR(dotAndSunElectrons(a, al, 1.0, RadiometryModel::kCorrected, b).ratio(), corrected, 1e-9 * corrected);
   // Study as stated = corrected x (electrical / optical power) x 100.
   EXPECT_NEAR(stated, corrected * a.led_power_study_w / a.led_optical_power_w * 100, 1e-9 * stated);
@@ -428,7 +434,7 @@ TEST(SceneAnalysis, DotToSunRatioForTheSimulator)
 
   // dotSnr / ratioForSnr are inverses and agree with DotSunElectrons::snr().
   EXPECT_NEAR(dotSnr(full.ratio(), full.sun_e, full.read_noise_e, full.dark_e), full.snr(), 1e-9 * full.snr());
-  for (double q : { 3.0, 32.0, 348.0 })
+  for (double q : {3.0, 32.0, 348.0})
   {
     const double r = ratioForSnr(q, 2e4, 100.0);
     EXPECT_NEAR(dotSnr(r, 2e4, 100.0), q, 1e-9 * q);
@@ -527,8 +533,9 @@ TEST(SceneAnalysis, ApertureSweepCsvAndPlot)
   std::istringstream is(csv);
   std::string header, line;
   std::getline(is, header);
-  EXPECT_EQ(header, "aperture_mm,doc_um,diffraction_400nm_um,diffraction_500nm_um,diffraction_600nm_um,"
-                    "diffraction_700nm_um,diffraction_800nm_um");
+  EXPECT_EQ(header,
+            "aperture_mm,doc_um,diffraction_400nm_um,diffraction_500nm_um,diffraction_600nm_um,"
+            "diffraction_700nm_um,diffraction_800nm_um");
   int lines = 0;
   while (std::getline(is, line))
     ++lines;

@@ -11,7 +11,8 @@ TEST(SimCalibrationFile, MatchesTheSimulatorsDefaultProjector)
 {
   ProjectorCalibration file;
   std::string error;
-  ASSERT_TRUE(loadProjectorCalibration(std::string(SLS_TEST_DATA_DIR) + "/../../config/projector_sim.yaml", &file, &error))
+  ASSERT_TRUE(
+      loadProjectorCalibration(std::string(SLS_TEST_DATA_DIR) + "/../../config/projector_sim.yaml", &file, &error))
       << error;
   const Simulator sim{SimulatorParams()};
   const ProjectorCalibration& exact = sim.projector();

@@ -263,9 +263,12 @@ TEST(Simulator, SubsampledRockShadingMatchesTheExactOne)
     std::nth_element(v.begin(), v.begin() + v.size() * 99 / 100, v.end());
     const double p99 = v[v.size() * 99 / 100];
     const double mean_diff = cv::mean(diff)[0], mean = cv::mean(b.reshape(1))[0];
-    std::cout << "[ MEASURE ] " << (variant == 0 ? "default rock" : variant == 1 ? "0.5 m relief" : "plumb_bob")
-              << ": |subsampled - exact| mean " << mean_diff << " DN, 99th percentile " << p99
-              << " DN (mean level " << mean << " DN)\n";
+    std::cout << "[ MEASURE ] "
+              << (variant == 0   ? "default rock"
+                  : variant == 1 ? "0.5 m relief"
+                                 : "plumb_bob")
+              << ": |subsampled - exact| mean " << mean_diff << " DN, 99th percentile " << p99 << " DN (mean level "
+              << mean << " DN)\n";
     EXPECT_LT(mean_diff, 0.01 * mean);  // below the sensor noise (>= 1 DN)
     EXPECT_LT(p99, 0.06 * mean);
   }
@@ -447,7 +450,8 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
   const double incidence = scene.inputs.sun_incidence_min_deg * M_PI / 180.0;
   // The weakest daylight sun (lowest F50, 50 deg incidence) as a sun_level,
   // which counts the sun at the study's brightest incidence (10 deg).
-  const double weakest_sun = scene.irradiance_latitude.min * std::cos(scene.inputs.sun_incidence_max_deg * M_PI / 180.0) /
+  const double weakest_sun = scene.irradiance_latitude.min *
+                             std::cos(scene.inputs.sun_incidence_max_deg * M_PI / 180.0) /
                              (scene.irradiance_latitude.max * std::cos(incidence));
   struct Case
   {
@@ -516,8 +520,8 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
       const double cxx = sxx / e - mx * mx, cyy = syy / e - my * my, cxy = sxy / e - mx * my;
       const double image_peak = e / (2.0 * M_PI * std::sqrt(cxx * cyy - cxy * cxy));
       const double rock_peak = e / (2.0 * M_PI * std::sqrt((cxx - blur) * (cyy - blur) - cxy * cxy));
-      const double background = bg.linear.at<cv::Vec3f>(static_cast<int>(std::round(p.y)),
-                                                        static_cast<int>(std::round(p.x)))[1];
+      const double background =
+          bg.linear.at<cv::Vec3f>(static_cast<int>(std::round(p.y)), static_cast<int>(std::round(p.x)))[1];
       // The dot meets the rock at its own incidence and distance from the
       // projector, the study's LED at 10 deg and the reference distance.
       const sls::BeamRay& beam = sim.projector().beams[b];
@@ -534,8 +538,8 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
         sls::dotAndSunElectrons(scene, k.albedo, k.sun_level, k.model, sls::Brdf::kLambertian, -1.0, dot_sigma_m);
     std::cout << "[ MEASURE ] " << k.name << ", sun_level " << k.sun_level << ": dot/sun ratio in the image "
               << sum_ratio / n << " (scene analysis " << expected_ratio << ", worst deviation " << 100.0 * worst
-              << " % over " << n << " dots); image SNR (blurred peak / background noise " << sd_noise[0]
-              << " DN) " << sum_snr / n << "; the study's sensor: SNR " << el.snr() << "\n";
+              << " % over " << n << " dots); image SNR (blurred peak / background noise " << sd_noise[0] << " DN) "
+              << sum_snr / n << "; the study's sensor: SNR " << el.snr() << "\n";
     EXPECT_LT(worst, 0.01);
   }
 }
