@@ -28,12 +28,18 @@
 // footprint, the defocus blur (DoC / 4 as a Gaussian sigma: the second moment
 // of a uniform disc of diameter DoC), diffraction and the pixel box.
 //
-// Where each part lives (src/sim/): rock_surface (height field, albedo,
-// shading), ray_cast (rays against the height field), rock_render (the rock's
-// radiance per pixel), projector_dots (beams, their footprints and ground
-// truth), clutter (patches on the rock), splat (image-space Gaussians),
-// optics (defocus, diffraction, vignetting), sensor (noise, quantisation),
-// rig_motion (the camera's motion), simulator (the frame, stage by stage).
+// Where each part lives (src/sim/), and so where new physics goes:
+//   rock_surface   height field, albedo, baked shading (texture, a target board)
+//   ray_cast       rays against the height field
+//   rock_render    the rock's radiance per pixel
+//   projector_dots beams, their footprints, brightness and ground truth
+//                  (projector colours, strobing, per-dot albedo)
+//   clutter        patches on the rock
+//   splat          image-space Gaussians (dots and patches)
+//   optics         defocus, diffraction, vignetting (per-dot defocus, filters)
+//   sensor         noise, quantisation (clipping, blooming, Bayer output)
+//   rig_motion     the camera's motion (an arm model)
+//   simulator      the frame, stage by stage (exposure effects: motion blur)
 //
 // Thread-safety: render() and the other const members may run concurrently;
 // updateLive() may not run concurrently with anything on the same object.
