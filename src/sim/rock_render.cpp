@@ -109,7 +109,7 @@ public:
   {
   }
 
-  // Rows of sampling.stride() floats, Hr of them.
+  // Fills `rows`: sampling.rh rows of sampling.stride() floats.
   void render(float* rows)
   {
     if (lattice_)
