@@ -800,7 +800,7 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
   if (config_.use_texture && has_camera_ && !frame.image.empty() && frame.image.cols == camera_.width &&
       frame.image.rows == camera_.height)
   {
-    TextureTrackerConfig tc;
+    TextureTrackerParams tc;
     tc.max_features = config_.texture_max_features;
     tc.quality = config_.texture_quality;
     tc.min_distance_px = config_.texture_min_distance_px;
