@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -10,6 +9,7 @@
 #include <Eigen/LU>
 #include <opencv2/imgproc.hpp>
 
+#include "structured_light_stabilizer/detail/math.h"
 #include "structured_light_stabilizer/texture_tracker.h"
 
 namespace structured_light_stabilizer
@@ -17,66 +17,6 @@ namespace structured_light_stabilizer
 
 namespace
 {
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-bool usable(const Eigen::Vector3d& p)
-{
-  return p.allFinite() && p.z() > 0.0;
-}
-
-// Catmull-Rom weights and their derivatives for the stencil (-1, 0, 1, 2).
-void catmullRom(double s, double w[4], double dw[4])
-{
-  const double s2 = s * s, s3 = s2 * s;
-  w[0] = 0.5 * (-s + 2.0 * s2 - s3);
-  w[1] = 0.5 * (2.0 - 5.0 * s2 + 3.0 * s3);
-  w[2] = 0.5 * (s + 4.0 * s2 - 3.0 * s3);
-  w[3] = 0.5 * (-s2 + s3);
-  dw[0] = 0.5 * (-1.0 + 4.0 * s - 3.0 * s2);
-  dw[1] = 0.5 * (-10.0 * s + 9.0 * s2);
-  dw[2] = 0.5 * (1.0 + 8.0 * s - 9.0 * s2);
-  dw[3] = 0.5 * (-2.0 * s + 3.0 * s2);
-}
-
-Eigen::Matrix3d skew(const Eigen::Vector3d& v)
-{
-  Eigen::Matrix3d m;
-  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return m;
-}
-
-double median(std::vector<double> v)
-{
-  if (v.empty())
-    return 0.0;
-  const size_t mid = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + mid, v.end());
-  return v[mid];
-}
-
-// Exp(delta) * T with delta = (v, w) on the current-frame side.
-Eigen::Isometry3d applyIncrement(const Vector6d& delta, const Eigen::Isometry3d& T)
-{
-  Eigen::Isometry3d D = Eigen::Isometry3d::Identity();
-  D.linear() = expSO3(delta.tail<3>());
-  D.translation() = delta.head<3>();
-  Eigen::Isometry3d out = D * T;
-  // Keep the rotation orthonormal over many chained updates.
-  out.linear() = Eigen::Quaterniond(out.linear()).normalized().toRotationMatrix();
-  return out;
-}
-
-// Adjoint of T for left perturbations ordered (v, w).
-Matrix6d adjoint(const Eigen::Isometry3d& T)
-{
-  Matrix6d A = Matrix6d::Zero();
-  const Eigen::Matrix3d R = T.linear();
-  A.topLeftCorner<3, 3>() = R;
-  A.topRightCorner<3, 3>() = skew(T.translation()) * R;
-  A.bottomRightCorner<3, 3>() = R;
-  return A;
-}
-
 const char* const kAxisNames[6] = {"tx", "ty", "tz", "rx", "ry", "rz"};
 
 // Texture features tracked over the pyramid to re-predict the others, and
@@ -90,264 +30,6 @@ constexpr int kIterationsAfterCoarseFit = 8;
 constexpr double kPredictionPriorM = 0.005;
 constexpr double kPredictionPriorRad = 0.005;
 }  // namespace
-
-Eigen::Matrix3d expSO3(const Eigen::Vector3d& w)
-{
-  const double angle = w.norm();
-  if (angle < 1e-12)
-    return Eigen::Matrix3d::Identity() + skew(w);
-  return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
-}
-
-Eigen::Vector3d logSO3(const Eigen::Matrix3d& R)
-{
-  const Eigen::AngleAxisd aa(R);
-  return aa.angle() * aa.axis();
-}
-
-// ---------------------------------------------------------------------------
-// BeamSurface
-
-void BeamSurface::build(int rows, int cols, const std::vector<Eigen::Vector3d>& points, double max_edge_ratio)
-{
-  rows_ = rows;
-  cols_ = cols;
-  valid_cells_ = 0;
-  median_edge_ = 0.0;
-  control_.clear();
-  cell_ok_.clear();
-  points_ = points;
-  if (rows < 2 || cols < 2 || static_cast<int>(points.size()) != rows * cols)
-  {
-    rows_ = cols_ = 0;
-    return;
-  }
-  auto ok = [&](int r, int c) { return r >= 0 && c >= 0 && r < rows && c < cols && usable(points[r * cols + c]); };
-  auto P = [&](int r, int c) -> const Eigen::Vector3d& { return points[r * cols + c]; };
-
-  std::vector<double> edges;
-  for (int r = 0; r < rows; ++r)
-    for (int c = 0; c < cols; ++c)
-    {
-      if (ok(r, c) && ok(r, c + 1))
-        edges.push_back((P(r, c) - P(r, c + 1)).norm());
-      if (ok(r, c) && ok(r + 1, c))
-        edges.push_back((P(r, c) - P(r + 1, c)).norm());
-    }
-  if (edges.empty())
-    return;
-  median_edge_ = median(edges);
-  const double max_edge = max_edge_ratio * median_edge_;
-  auto linked = [&](int r0, int c0, int r1, int c1)
-  { return ok(r0, c0) && ok(r1, c1) && (P(r0, c0) - P(r1, c1)).norm() <= max_edge; };
-
-  const int cell_rows = rows - 1, cell_cols = cols - 1;
-  control_.resize(static_cast<size_t>(cell_rows) * cell_cols);
-  cell_ok_.assign(static_cast<size_t>(cell_rows) * cell_cols, 0);
-  for (int r = 0; r < cell_rows; ++r)
-  {
-    for (int c = 0; c < cell_cols; ++c)
-    {
-      if (!linked(r, c, r, c + 1) || !linked(r + 1, c, r + 1, c + 1) || !linked(r, c, r + 1, c) ||
-          !linked(r, c + 1, r + 1, c + 1))
-        continue;
-      std::array<Eigen::Vector3d, 16>& K = control_[r * cell_cols + c];
-      // Stencil index (i, j) <-> grid point (r - 1 + i, c - 1 + j).
-      auto at = [&](int i, int j) -> Eigen::Vector3d& { return K[i * 4 + j]; };
-      for (int i = 1; i <= 2; ++i)
-        for (int j = 1; j <= 2; ++j)
-          at(i, j) = P(r - 1 + i, c - 1 + j);
-      // Edge stencil points: the real neighbour when it continues the
-      // surface, otherwise a linear extrapolation of the cell.
-      for (int j = 1; j <= 2; ++j)
-      {
-        const int cc = c - 1 + j;
-        at(0, j) = linked(r - 1, cc, r, cc) ? P(r - 1, cc) : Eigen::Vector3d(2.0 * at(1, j) - at(2, j));
-        at(3, j) = linked(r + 2, cc, r + 1, cc) ? P(r + 2, cc) : Eigen::Vector3d(2.0 * at(2, j) - at(1, j));
-      }
-      for (int i = 1; i <= 2; ++i)
-      {
-        const int rr = r - 1 + i;
-        at(i, 0) = linked(rr, c - 1, rr, c) ? P(rr, c - 1) : Eigen::Vector3d(2.0 * at(i, 1) - at(i, 2));
-        at(i, 3) = linked(rr, c + 2, rr, c + 1) ? P(rr, c + 2) : Eigen::Vector3d(2.0 * at(i, 2) - at(i, 1));
-      }
-      const int ci[2] = {0, 3}, inner[2] = {1, 2};
-      for (int a = 0; a < 2; ++a)
-        for (int b = 0; b < 2; ++b)
-        {
-          const int i = ci[a], j = ci[b], ii = inner[a], jj = inner[b];
-          const int gr = r - 1 + i, gc = c - 1 + j;
-          at(i, j) =
-              linked(gr, gc, r - 1 + ii, c - 1 + jj) ? P(gr, gc) : Eigen::Vector3d(at(i, jj) + at(ii, j) - at(ii, jj));
-        }
-      cell_ok_[r * cell_cols + c] = 1;
-      ++valid_cells_;
-    }
-  }
-}
-
-bool BeamSurface::cellValid(int r, int c) const
-{
-  return r >= 0 && c >= 0 && r < rows_ - 1 && c < cols_ - 1 && cell_ok_[r * (cols_ - 1) + c];
-}
-
-bool BeamSurface::evaluate(double u, double v, Eigen::Vector3d* s, Eigen::Vector3d* s_u, Eigen::Vector3d* s_v) const
-{
-  if (valid_cells_ == 0 || !std::isfinite(u) || !std::isfinite(v))
-    return false;
-  const double eps = 1e-9;
-  if (u < -eps || v < -eps || u > rows_ - 1 + eps || v > cols_ - 1 + eps)
-    return false;
-  const int r = std::min(std::max(static_cast<int>(std::floor(u)), 0), rows_ - 2);
-  const int c = std::min(std::max(static_cast<int>(std::floor(v)), 0), cols_ - 2);
-  if (!cellValid(r, c))
-    return false;
-  double wr[4], dwr[4], wc[4], dwc[4];
-  catmullRom(u - r, wr, dwr);
-  catmullRom(v - c, wc, dwc);
-  const std::array<Eigen::Vector3d, 16>& K = control_[r * (cols_ - 1) + c];
-  Eigen::Vector3d S = Eigen::Vector3d::Zero(), Su = Eigen::Vector3d::Zero(), Sv = Eigen::Vector3d::Zero();
-  for (int i = 0; i < 4; ++i)
-  {
-    Eigen::Vector3d row = Eigen::Vector3d::Zero(), drow = Eigen::Vector3d::Zero();
-    for (int j = 0; j < 4; ++j)
-    {
-      row += wc[j] * K[i * 4 + j];
-      drow += dwc[j] * K[i * 4 + j];
-    }
-    S += wr[i] * row;
-    Su += dwr[i] * row;
-    Sv += wr[i] * drow;
-  }
-  *s = S;
-  if (s_u)
-    *s_u = Su;
-  if (s_v)
-    *s_v = Sv;
-  return true;
-}
-
-bool BeamSurface::closestPoint(const Eigen::Vector3d& x, Eigen::Vector2d* uv, Eigen::Vector3d* foot,
-                               Eigen::Vector3d* normal) const
-{
-  if (valid_cells_ == 0)
-    return false;
-  Eigen::Vector2d p = *uv;
-  if (!p.allFinite())
-  {
-    double best = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < rows_ * cols_; ++i)
-    {
-      if (!usable(points_[i]))
-        continue;
-      const double d = (points_[i] - x).squaredNorm();
-      if (d < best)
-      {
-        best = d;
-        p = Eigen::Vector2d(i / cols_, i % cols_);
-      }
-    }
-    if (!p.allFinite())
-      return false;
-  }
-  Eigen::Vector3d S, Su, Sv;
-  bool pushed_out = false;
-  for (int it = 0; it < 12; ++it)
-  {
-    if (!evaluate(p.x(), p.y(), &S, &Su, &Sv))
-      return false;
-    Eigen::Matrix<double, 3, 2> J;
-    J << Su, Sv;
-    const Eigen::Matrix2d A = J.transpose() * J;
-    const double det = A.determinant();
-    if (!(det > 1e-30))
-      return false;
-    Eigen::Vector2d step = A.inverse() * (J.transpose() * (x - S));
-    const double len = step.norm();
-    if (len > 1.0)
-      step /= len;  // at most one cell per step: the surface is only locally quadratic
-    Eigen::Vector2d next = p + step;
-    pushed_out = false;
-    if (next.x() < 0.0 || next.y() < 0.0 || next.x() > rows_ - 1 || next.y() > cols_ - 1)
-    {
-      next.x() = std::min(std::max(next.x(), 0.0), static_cast<double>(rows_ - 1));
-      next.y() = std::min(std::max(next.y(), 0.0), static_cast<double>(cols_ - 1));
-      pushed_out = true;
-    }
-    p = next;
-    if (len < 1e-7)
-      break;
-  }
-  // A foot clamped at the border is not a perpendicular foot: the point lies
-  // beyond the mapped part of the rock.
-  if (pushed_out || !evaluate(p.x(), p.y(), &S, &Su, &Sv))
-    return false;
-  Eigen::Vector3d n = Su.cross(Sv);
-  const double nn = n.norm();
-  if (!(nn > 0.0))
-    return false;
-  n /= nn;
-  if (n.dot(S) > 0.0)
-    n = -n;
-  *uv = p;
-  *foot = S;
-  *normal = n;
-  return true;
-}
-
-bool BeamSurface::intersectRay(const Eigen::Vector3d& direction, Eigen::Vector2d* uv, Eigen::Vector3d* hit) const
-{
-  if (valid_cells_ == 0)
-    return false;
-  const Eigen::Vector3d d = direction.normalized();
-  const Eigen::Matrix3d Pperp = Eigen::Matrix3d::Identity() - d * d.transpose();
-  Eigen::Vector2d p = *uv;
-  if (!p.allFinite())
-  {
-    double best = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < rows_ * cols_; ++i)
-    {
-      if (!usable(points_[i]))
-        continue;
-      const double dist = (Pperp * points_[i]).squaredNorm();
-      if (dist < best)
-      {
-        best = dist;
-        p = Eigen::Vector2d(std::min(i / cols_, rows_ - 2) + 0.5, std::min(i % cols_, cols_ - 2) + 0.5);
-      }
-    }
-    if (!p.allFinite())
-      return false;
-  }
-  Eigen::Vector3d S, Su, Sv;
-  for (int it = 0; it < 15; ++it)
-  {
-    if (!evaluate(p.x(), p.y(), &S, &Su, &Sv))
-      return false;
-    Eigen::Matrix<double, 3, 2> J;
-    J << Pperp * Su, Pperp * Sv;
-    const Eigen::Matrix2d A = J.transpose() * J;
-    if (!(A.determinant() > 1e-30))
-      return false;
-    Eigen::Vector2d step = -A.inverse() * (J.transpose() * (Pperp * S));
-    const double len = step.norm();
-    if (len > 1.0)
-      step /= len;
-    p += step;
-    if (p.x() < 0.0 || p.y() < 0.0 || p.x() > rows_ - 1 || p.y() > cols_ - 1)
-      return false;
-    if (len < 1e-8)
-      break;
-  }
-  if (!evaluate(p.x(), p.y(), &S))
-    return false;
-  // The ray must actually pass through the surface, not just near it.
-  if ((Pperp * S).norm() > 1e-6 * S.norm() || S.dot(d) <= 0.0)
-    return false;
-  *uv = p;
-  *hit = S;
-  return true;
-}
 
 // ---------------------------------------------------------------------------
 // Registration
@@ -453,10 +135,10 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
   {
     std::vector<double> z;
     for (const Eigen::Vector3d& q : current)
-      if (usable(q))
+      if (isUsablePoint(q))
         z.push_back(q.norm());
     if (!z.empty())
-      depth = median(z);
+      depth = detail::median(z);
   }
   const double freeze_sigma =
       config.freeze_factor * std::max(config.max_sigma_translation_m, config.max_sigma_rotation_rad * depth);
@@ -486,7 +168,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
       for (size_t i = 0; i < current.size(); ++i)
       {
         const Eigen::Vector3d& q = current[i];
-        if (!usable(q))
+        if (!isUsablePoint(q))
           continue;
         const Eigen::Vector3d x = Tinv * q;
         Eigen::Vector3d foot, n;
@@ -507,7 +189,7 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
       {
         for (size_t j = 0; j < reference.size(); ++j)
         {
-          if (!usable(reference[j]))
+          if (!isUsablePoint(reference[j]))
             continue;
           const Eigen::Vector3d y = T * reference[j];
           Eigen::Vector3d foot, n;
@@ -549,14 +231,14 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
         a.reserve(geo.size());
         for (const GeoRow& g : geo)
           a.push_back(std::abs(g.r));
-        sigma_g = std::max(config.min_geometry_sigma_m, 1.4826 * median(a));
+        sigma_g = std::max(config.min_geometry_sigma_m, 1.4826 * detail::median(a));
         a.clear();
         for (const Eigen::Vector2d& e : tex_r)
         {
           a.push_back(std::abs(e.x()));
           a.push_back(std::abs(e.y()));
         }
-        sigma_t = std::max(config.min_texture_sigma_px, 1.4826 * median(a));
+        sigma_t = std::max(config.min_texture_sigma_px, 1.4826 * detail::median(a));
       }
 
       Matrix6d H = Matrix6d::Zero();
@@ -641,7 +323,8 @@ RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
       for (const DepthElimination& e : eliminated)
         tex_depth[e.k] -= (e.g + e.B.dot(delta)) / e.C;
       // Once settled, one more pass evaluates residuals and information at the solution.
-      converged = delta.head<3>().norm() < 1e-6 && delta.tail<3>().norm() < 5e-7;  // 1 um, 0.5 urad: far below the noise
+      converged =
+          delta.head<3>().norm() < 1e-6 && delta.tail<3>().norm() < 5e-7;  // 1 um, 0.5 urad: far below the noise
     }
     if (phase == 1)
       break;
@@ -763,7 +446,7 @@ std::string PoseDeltaEstimator::checkMap(const PoseDeltaInput& frame, int* valid
     return "cloud layout " + std::to_string(frame.rows) + "x" + std::to_string(frame.cols) +
            " is not a 2D grid of beams (a surface needs at least 2x2)";
   for (const Eigen::Vector3d& p : frame.points)
-    *valid_points += usable(p) ? 1 : 0;
+    *valid_points += isUsablePoint(p) ? 1 : 0;
   if (*valid_points == 0)
     return "no valid point in the cloud (all NaN)";
   if (*valid_points < config_.min_points)
@@ -779,7 +462,7 @@ std::vector<cv::Point2f> projectAll(const CameraModel& camera, const std::vector
   px.reserve(points.size());
   for (const Eigen::Vector3d& p : points)
   {
-    if (!usable(p))
+    if (!isUsablePoint(p))
       continue;
     const cv::Point2d q = camera.project(p);
     if (std::isfinite(q.x) && std::isfinite(q.y))
@@ -817,14 +500,14 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
     const std::vector<cv::Point2f> dots = projectAll(camera_, frame.points);
     if (!dots.empty())
     {
-      const cv::Rect region = config_.texture_whole_image ? cv::Rect(0, 0, frame.image.cols, frame.image.rows)
-                                                          : cv::boundingRect(dots);
+      const cv::Rect region =
+          config_.texture_whole_image ? cv::Rect(0, 0, frame.image.cols, frame.image.rows) : cv::boundingRect(dots);
       tracker_->setReference(frame.image, frame.texture_channel, region, dots);
       // Least-squares plane of the reference points, and their scatter about it.
       Eigen::Vector3d centre = Eigen::Vector3d::Zero();
       int n = 0;
       for (const Eigen::Vector3d& p : frame.points)
-        if (usable(p))
+        if (isUsablePoint(p))
         {
           centre += p;
           ++n;
@@ -832,7 +515,7 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
       centre /= std::max(n, 1);
       Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
       for (const Eigen::Vector3d& p : frame.points)
-        if (usable(p))
+        if (isUsablePoint(p))
           scatter += (p - centre) * (p - centre).transpose();
       const Eigen::JacobiSVD<Eigen::Matrix3d> plane(scatter, Eigen::ComputeFullU);
       const Eigen::Vector3d normal = plane.matrixU().col(2);
@@ -841,7 +524,7 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
       std::vector<uint8_t> keep(tracker_->features().size(), 0);
       for (size_t k = 0; k < keep.size(); ++k)
       {
-        Eigen::Vector2d uv(kNaN, kNaN);
+        Eigen::Vector2d uv(detail::kNaN, detail::kNaN);
         Eigen::Vector3d X;
         const cv::Point2f& f = tracker_->features()[k];
         const Eigen::Vector3d ray = camera_.ray(cv::Point2d(f.x, f.y)).normalized();
@@ -955,8 +638,8 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
       quick.freeze_factor = 1e9;
       quick.prior_sigma_translation_m = std::min(config_.prior_sigma_translation_m, kPredictionPriorM);
       quick.prior_sigma_rotation_rad = std::min(config_.prior_sigma_rotation_rad, kPredictionPriorRad);
-      const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,
-                                                       frame.points, {}, 1.0, initial, quick);
+      const RegistrationOutput geo =
+          registerToSurface(reference_->surface, reference_->points, nullptr, frame.points, {}, 1.0, initial, quick);
       if (geo.points_used >= config_.min_points && geo.transform.matrix().allFinite())
         initial = geo.transform;
       const std::vector<Eigen::Vector3d>& X = reference_->features_3d;
