@@ -20,7 +20,7 @@
 // map, on a plane through it, with the depth left free), adds reprojection
 // constraints that pin the axes a smooth or flat rock leaves free (in-plane
 // translation, roll about the view axis). Both go into one Gauss-Newton
-// problem on se(3).
+// problem on se(3) (registration.h).
 #pragma once
 
 #include <array>
@@ -35,6 +35,7 @@
 #include "structured_light_stabilizer/beam_surface.h"
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/pose_delta_params.h"
+#include "structured_light_stabilizer/registration.h"
 #include "structured_light_stabilizer/se3.h"
 
 namespace structured_light_stabilizer
@@ -111,40 +112,5 @@ private:
   Eigen::Isometry3d chained_ = Eigen::Isometry3d::Identity();        // frame_to_frame: reference_ to the lock
   Matrix6d chained_covariance_ = Matrix6d::Zero();
 };
-
-// Lower-level solver, exposed for tests and the benchmark: registers `current`
-// points (camera frame now) against `reference_surface` (reference frame)
-// and, when `current_surface` is non-null, the `reference` points against it.
-// Texture constraints: reference 3D points and their observed undistorted
-// normalised coordinates in the current image (scaled by `focal_px`).
-// A feature's depth along its reference ray is an unknown of the solve when
-// depth_sigma_m > 0 (point_ref is then its prior, with this 1-sigma), fixed
-// at point_ref otherwise. Free depths let features far from the dots, whose
-// depth is only extrapolated, still separate rotation from translation.
-struct TextureConstraint
-{
-  Eigen::Vector3d point_ref;
-  Eigen::Vector2d observed_normalized;
-  double depth_sigma_m = 0.0;
-};
-
-struct RegistrationOutput
-{
-  Eigen::Isometry3d transform = Eigen::Isometry3d::Identity();
-  Matrix6d information = Matrix6d::Zero();  // J^T W J with noise-scaled weights (texture deflated), no prior
-  Matrix6d covariance = Matrix6d::Identity();
-  double rms_geometry_m = 0.0;
-  double sigma_geometry_m = 0.0;
-  double sigma_texture_px = 0.0;
-  int points_used = 0;
-  int features_used = 0;
-  int iterations = 0;
-};
-
-RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
-                                     const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
-                                     const std::vector<Eigen::Vector3d>& current,
-                                     const std::vector<TextureConstraint>& texture, double focal_px,
-                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config);
 
 }  // namespace structured_light_stabilizer
