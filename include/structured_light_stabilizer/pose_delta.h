@@ -8,7 +8,9 @@
 // in the order (tx, ty, tz, rx, ry, rz) (metres, radians; a small rotation
 // vector applied on the current-frame side, se3.h), the RMS point-to-surface
 // residual in metres, the points used, a validity flag and a status string
-// naming any unobservable axis.
+// naming any unobservable axis. One estimator is not thread-safe; setParams()
+// throws std::invalid_argument, nothing else throws on bad input (the result
+// says why it is not valid).
 //
 // The physics (docs/pose_delta.md): the dots are fixed to the projector, so
 // beam i hits a different rock point in every frame. The estimator therefore
@@ -17,10 +19,10 @@
 // and the reference points against the current surface), point-to-plane with
 // robust weights; the rock's own texture, tracked over the whole image away
 // from the dots and lifted to 3D on the reference surface (or, off the dot
-// map, on a plane through it, with the depth left free), adds reprojection
-// constraints that pin the axes a smooth or flat rock leaves free (in-plane
-// translation, roll about the view axis). Both go into one Gauss-Newton
-// problem on se(3) (registration.h).
+// map, on a plane through it, with the depth left free; texture_landmarks.h),
+// adds reprojection constraints that pin the axes a smooth or flat rock
+// leaves free (in-plane translation, roll about the view axis). Both go into
+// one Gauss-Newton problem on se(3) (registration.h).
 #pragma once
 
 #include <array>
@@ -70,7 +72,7 @@ struct PoseDeltaResult
   std::string status;
 };
 
-class TextureTracker;
+class TextureLandmarks;
 
 class PoseDeltaEstimator
 {
@@ -97,7 +99,30 @@ public:
 
 private:
   struct Frame;
+  struct TextureMeasurement;
+
+  // The steps of process(), in order. The first two return why the frame
+  // cannot be used ("" when it can); referenceFor() locks a pending reference.
   std::string checkMap(const PoseDeltaInput& frame, int* valid_points) const;
+  std::string referenceFor(const PoseDeltaInput& frame, PoseDeltaResult* result);
+  // Image -> texture constraints; *initial becomes the best prediction of the pose.
+  TextureMeasurement measureTexture(const PoseDeltaInput& frame, Eigen::Isometry3d* initial);
+  RegistrationOutput registerFrame(const PoseDeltaInput& frame, const TextureMeasurement& texture,
+                                   const Eigen::Isometry3d& initial) const;
+  // Covariance (chained in frame_to_frame), per-axis observability, validity and status.
+  void report(const RegistrationOutput& reg, const TextureMeasurement& texture, int valid_points,
+              PoseDeltaResult* result) const;
+  std::string describe(const PoseDeltaResult& result, int valid_points, bool enough, bool residual_ok,
+                       const std::string& unobservable, const std::string& texture_note) const;
+  // A valid result becomes the next frame's starting point (or reference, frame_to_frame).
+  void advance(const PoseDeltaInput& frame, const PoseDeltaResult& result, const RegistrationOutput& reg);
+
+  // Why the texture cannot be tracked in this frame, or "".
+  std::string textureUnavailable(const PoseDeltaInput& frame) const;
+  // A quick one-way registration from *pose, for a prediction: *pose becomes
+  // the fit when it is usable (true).
+  bool refit(const PoseDeltaInput& frame, const std::vector<TextureConstraint>& texture, double focal_px,
+             const PoseDeltaParams& params, Eigen::Isometry3d* pose) const;
   void lock(const PoseDeltaInput& frame);
 
   PoseDeltaParams config_;
@@ -107,7 +132,7 @@ private:
   bool lock_pending_ = true;
 
   std::unique_ptr<Frame> reference_;
-  std::unique_ptr<TextureTracker> tracker_;
+  std::unique_ptr<TextureLandmarks> texture_;
   Eigen::Isometry3d last_estimate_ = Eigen::Isometry3d::Identity();  // relative to reference_
   Eigen::Isometry3d chained_ = Eigen::Isometry3d::Identity();        // frame_to_frame: reference_ to the lock
   Matrix6d chained_covariance_ = Matrix6d::Zero();
