@@ -2,355 +2,44 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <sstream>
 #include <stdexcept>
 
-#include <Eigen/SVD>
-#include <Eigen/LU>
-#include <opencv2/imgproc.hpp>
-
-#include "structured_light_stabilizer/texture_tracker.h"
+#include "structured_light_stabilizer/texture_landmarks.h"
 
 namespace structured_light_stabilizer
 {
 
 namespace
 {
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
-bool usable(const Eigen::Vector3d& p)
-{
-  return p.allFinite() && p.z() > 0.0;
-}
-
-// Catmull-Rom weights and their derivatives for the stencil (-1, 0, 1, 2).
-void catmullRom(double s, double w[4], double dw[4])
-{
-  const double s2 = s * s, s3 = s2 * s;
-  w[0] = 0.5 * (-s + 2.0 * s2 - s3);
-  w[1] = 0.5 * (2.0 - 5.0 * s2 + 3.0 * s3);
-  w[2] = 0.5 * (s + 4.0 * s2 - 3.0 * s3);
-  w[3] = 0.5 * (-s2 + s3);
-  dw[0] = 0.5 * (-1.0 + 4.0 * s - 3.0 * s2);
-  dw[1] = 0.5 * (-10.0 * s + 9.0 * s2);
-  dw[2] = 0.5 * (1.0 + 8.0 * s - 9.0 * s2);
-  dw[3] = 0.5 * (-2.0 * s + 3.0 * s2);
-}
-
-Eigen::Matrix3d skew(const Eigen::Vector3d& v)
-{
-  Eigen::Matrix3d m;
-  m << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
-  return m;
-}
-
-double median(std::vector<double> v)
-{
-  if (v.empty())
-    return 0.0;
-  const size_t mid = v.size() / 2;
-  std::nth_element(v.begin(), v.begin() + mid, v.end());
-  return v[mid];
-}
-
-// Exp(delta) * T with delta = (v, w) on the current-frame side.
-Eigen::Isometry3d applyIncrement(const Vector6d& delta, const Eigen::Isometry3d& T)
-{
-  Eigen::Isometry3d D = Eigen::Isometry3d::Identity();
-  D.linear() = expSO3(delta.tail<3>());
-  D.translation() = delta.head<3>();
-  Eigen::Isometry3d out = D * T;
-  // Keep the rotation orthonormal over many chained updates.
-  out.linear() = Eigen::Quaterniond(out.linear()).normalized().toRotationMatrix();
-  return out;
-}
-
-// Adjoint of T for left perturbations ordered (v, w).
-Matrix6d adjoint(const Eigen::Isometry3d& T)
-{
-  Matrix6d A = Matrix6d::Zero();
-  const Eigen::Matrix3d R = T.linear();
-  A.topLeftCorner<3, 3>() = R;
-  A.topRightCorner<3, 3>() = skew(T.translation()) * R;
-  A.bottomRightCorner<3, 3>() = R;
-  return A;
-}
 
 const char* const kAxisNames[6] = {"tx", "ty", "tz", "rx", "ry", "rz"};
 
-// Texture features tracked over the pyramid to re-predict the others, and
-// the fewest of them worth a prediction.
-constexpr size_t kCoarseFeatures = 48;
-// Tukey's biweight constant (95 % efficiency on Gaussian noise), in robust sigmas.
-constexpr double kTukeyC = 4.685;
-constexpr int kMinCoarseFeatures = 12;
-constexpr int kIterationsAfterCoarseFit = 8;
-// Prior of the geometry-only prediction (see process()).
+// Pose predictions (the geometry-only one and the coarse texture fit) are
+// only starting points: a few iterations, no frozen directions.
+constexpr int kPredictionIterations = 6;
+// Prior of the geometry-only prediction (see measureTexture()).
 constexpr double kPredictionPriorM = 0.005;
 constexpr double kPredictionPriorRad = 0.005;
+// Coarse texture tracks needed for a texture prediction.
+constexpr int kMinCoarseFeatures = 12;
+// Iterations of the final solve when it starts from the coarse texture fit.
+constexpr int kIterationsAfterCoarseFit = 8;
+
+PoseDeltaParams predictionParams(const PoseDeltaParams& config, bool firm_prior)
+{
+  PoseDeltaParams quick = config;
+  quick.max_iterations = std::min(config.max_iterations, kPredictionIterations);
+  quick.freeze_factor = 1e9;
+  if (firm_prior)
+  {
+    quick.prior_sigma_translation_m = std::min(config.prior_sigma_translation_m, kPredictionPriorM);
+    quick.prior_sigma_rotation_rad = std::min(config.prior_sigma_rotation_rad, kPredictionPriorRad);
+  }
+  return quick;
+}
+
 }  // namespace
-
-Eigen::Matrix3d expSO3(const Eigen::Vector3d& w)
-{
-  const double angle = w.norm();
-  if (angle < 1e-12)
-    return Eigen::Matrix3d::Identity() + skew(w);
-  return Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
-}
-
-Eigen::Vector3d logSO3(const Eigen::Matrix3d& R)
-{
-  const Eigen::AngleAxisd aa(R);
-  return aa.angle() * aa.axis();
-}
-
-// ---------------------------------------------------------------------------
-// BeamSurface
-
-void BeamSurface::build(int rows, int cols, const std::vector<Eigen::Vector3d>& points, double max_edge_ratio)
-{
-  rows_ = rows;
-  cols_ = cols;
-  valid_cells_ = 0;
-  median_edge_ = 0.0;
-  control_.clear();
-  cell_ok_.clear();
-  points_ = points;
-  if (rows < 2 || cols < 2 || static_cast<int>(points.size()) != rows * cols)
-  {
-    rows_ = cols_ = 0;
-    return;
-  }
-  auto ok = [&](int r, int c) { return r >= 0 && c >= 0 && r < rows && c < cols && usable(points[r * cols + c]); };
-  auto P = [&](int r, int c) -> const Eigen::Vector3d& { return points[r * cols + c]; };
-
-  std::vector<double> edges;
-  for (int r = 0; r < rows; ++r)
-    for (int c = 0; c < cols; ++c)
-    {
-      if (ok(r, c) && ok(r, c + 1))
-        edges.push_back((P(r, c) - P(r, c + 1)).norm());
-      if (ok(r, c) && ok(r + 1, c))
-        edges.push_back((P(r, c) - P(r + 1, c)).norm());
-    }
-  if (edges.empty())
-    return;
-  median_edge_ = median(edges);
-  const double max_edge = max_edge_ratio * median_edge_;
-  auto linked = [&](int r0, int c0, int r1, int c1)
-  { return ok(r0, c0) && ok(r1, c1) && (P(r0, c0) - P(r1, c1)).norm() <= max_edge; };
-
-  const int cell_rows = rows - 1, cell_cols = cols - 1;
-  control_.resize(static_cast<size_t>(cell_rows) * cell_cols);
-  cell_ok_.assign(static_cast<size_t>(cell_rows) * cell_cols, 0);
-  for (int r = 0; r < cell_rows; ++r)
-  {
-    for (int c = 0; c < cell_cols; ++c)
-    {
-      if (!linked(r, c, r, c + 1) || !linked(r + 1, c, r + 1, c + 1) || !linked(r, c, r + 1, c) ||
-          !linked(r, c + 1, r + 1, c + 1))
-        continue;
-      std::array<Eigen::Vector3d, 16>& K = control_[r * cell_cols + c];
-      // Stencil index (i, j) <-> grid point (r - 1 + i, c - 1 + j).
-      auto at = [&](int i, int j) -> Eigen::Vector3d& { return K[i * 4 + j]; };
-      for (int i = 1; i <= 2; ++i)
-        for (int j = 1; j <= 2; ++j)
-          at(i, j) = P(r - 1 + i, c - 1 + j);
-      // Edge stencil points: the real neighbour when it continues the
-      // surface, otherwise a linear extrapolation of the cell.
-      for (int j = 1; j <= 2; ++j)
-      {
-        const int cc = c - 1 + j;
-        at(0, j) = linked(r - 1, cc, r, cc) ? P(r - 1, cc) : Eigen::Vector3d(2.0 * at(1, j) - at(2, j));
-        at(3, j) = linked(r + 2, cc, r + 1, cc) ? P(r + 2, cc) : Eigen::Vector3d(2.0 * at(2, j) - at(1, j));
-      }
-      for (int i = 1; i <= 2; ++i)
-      {
-        const int rr = r - 1 + i;
-        at(i, 0) = linked(rr, c - 1, rr, c) ? P(rr, c - 1) : Eigen::Vector3d(2.0 * at(i, 1) - at(i, 2));
-        at(i, 3) = linked(rr, c + 2, rr, c + 1) ? P(rr, c + 2) : Eigen::Vector3d(2.0 * at(i, 2) - at(i, 1));
-      }
-      const int ci[2] = {0, 3}, inner[2] = {1, 2};
-      for (int a = 0; a < 2; ++a)
-        for (int b = 0; b < 2; ++b)
-        {
-          const int i = ci[a], j = ci[b], ii = inner[a], jj = inner[b];
-          const int gr = r - 1 + i, gc = c - 1 + j;
-          at(i, j) =
-              linked(gr, gc, r - 1 + ii, c - 1 + jj) ? P(gr, gc) : Eigen::Vector3d(at(i, jj) + at(ii, j) - at(ii, jj));
-        }
-      cell_ok_[r * cell_cols + c] = 1;
-      ++valid_cells_;
-    }
-  }
-}
-
-bool BeamSurface::cellValid(int r, int c) const
-{
-  return r >= 0 && c >= 0 && r < rows_ - 1 && c < cols_ - 1 && cell_ok_[r * (cols_ - 1) + c];
-}
-
-bool BeamSurface::evaluate(double u, double v, Eigen::Vector3d* s, Eigen::Vector3d* s_u, Eigen::Vector3d* s_v) const
-{
-  if (valid_cells_ == 0 || !std::isfinite(u) || !std::isfinite(v))
-    return false;
-  const double eps = 1e-9;
-  if (u < -eps || v < -eps || u > rows_ - 1 + eps || v > cols_ - 1 + eps)
-    return false;
-  const int r = std::min(std::max(static_cast<int>(std::floor(u)), 0), rows_ - 2);
-  const int c = std::min(std::max(static_cast<int>(std::floor(v)), 0), cols_ - 2);
-  if (!cellValid(r, c))
-    return false;
-  double wr[4], dwr[4], wc[4], dwc[4];
-  catmullRom(u - r, wr, dwr);
-  catmullRom(v - c, wc, dwc);
-  const std::array<Eigen::Vector3d, 16>& K = control_[r * (cols_ - 1) + c];
-  Eigen::Vector3d S = Eigen::Vector3d::Zero(), Su = Eigen::Vector3d::Zero(), Sv = Eigen::Vector3d::Zero();
-  for (int i = 0; i < 4; ++i)
-  {
-    Eigen::Vector3d row = Eigen::Vector3d::Zero(), drow = Eigen::Vector3d::Zero();
-    for (int j = 0; j < 4; ++j)
-    {
-      row += wc[j] * K[i * 4 + j];
-      drow += dwc[j] * K[i * 4 + j];
-    }
-    S += wr[i] * row;
-    Su += dwr[i] * row;
-    Sv += wr[i] * drow;
-  }
-  *s = S;
-  if (s_u)
-    *s_u = Su;
-  if (s_v)
-    *s_v = Sv;
-  return true;
-}
-
-bool BeamSurface::closestPoint(const Eigen::Vector3d& x, Eigen::Vector2d* uv, Eigen::Vector3d* foot,
-                               Eigen::Vector3d* normal) const
-{
-  if (valid_cells_ == 0)
-    return false;
-  Eigen::Vector2d p = *uv;
-  if (!p.allFinite())
-  {
-    double best = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < rows_ * cols_; ++i)
-    {
-      if (!usable(points_[i]))
-        continue;
-      const double d = (points_[i] - x).squaredNorm();
-      if (d < best)
-      {
-        best = d;
-        p = Eigen::Vector2d(i / cols_, i % cols_);
-      }
-    }
-    if (!p.allFinite())
-      return false;
-  }
-  Eigen::Vector3d S, Su, Sv;
-  bool pushed_out = false;
-  for (int it = 0; it < 12; ++it)
-  {
-    if (!evaluate(p.x(), p.y(), &S, &Su, &Sv))
-      return false;
-    Eigen::Matrix<double, 3, 2> J;
-    J << Su, Sv;
-    const Eigen::Matrix2d A = J.transpose() * J;
-    const double det = A.determinant();
-    if (!(det > 1e-30))
-      return false;
-    Eigen::Vector2d step = A.inverse() * (J.transpose() * (x - S));
-    const double len = step.norm();
-    if (len > 1.0)
-      step /= len;  // at most one cell per step: the surface is only locally quadratic
-    Eigen::Vector2d next = p + step;
-    pushed_out = false;
-    if (next.x() < 0.0 || next.y() < 0.0 || next.x() > rows_ - 1 || next.y() > cols_ - 1)
-    {
-      next.x() = std::min(std::max(next.x(), 0.0), static_cast<double>(rows_ - 1));
-      next.y() = std::min(std::max(next.y(), 0.0), static_cast<double>(cols_ - 1));
-      pushed_out = true;
-    }
-    p = next;
-    if (len < 1e-7)
-      break;
-  }
-  // A foot clamped at the border is not a perpendicular foot: the point lies
-  // beyond the mapped part of the rock.
-  if (pushed_out || !evaluate(p.x(), p.y(), &S, &Su, &Sv))
-    return false;
-  Eigen::Vector3d n = Su.cross(Sv);
-  const double nn = n.norm();
-  if (!(nn > 0.0))
-    return false;
-  n /= nn;
-  if (n.dot(S) > 0.0)
-    n = -n;
-  *uv = p;
-  *foot = S;
-  *normal = n;
-  return true;
-}
-
-bool BeamSurface::intersectRay(const Eigen::Vector3d& direction, Eigen::Vector2d* uv, Eigen::Vector3d* hit) const
-{
-  if (valid_cells_ == 0)
-    return false;
-  const Eigen::Vector3d d = direction.normalized();
-  const Eigen::Matrix3d Pperp = Eigen::Matrix3d::Identity() - d * d.transpose();
-  Eigen::Vector2d p = *uv;
-  if (!p.allFinite())
-  {
-    double best = std::numeric_limits<double>::infinity();
-    for (int i = 0; i < rows_ * cols_; ++i)
-    {
-      if (!usable(points_[i]))
-        continue;
-      const double dist = (Pperp * points_[i]).squaredNorm();
-      if (dist < best)
-      {
-        best = dist;
-        p = Eigen::Vector2d(std::min(i / cols_, rows_ - 2) + 0.5, std::min(i % cols_, cols_ - 2) + 0.5);
-      }
-    }
-    if (!p.allFinite())
-      return false;
-  }
-  Eigen::Vector3d S, Su, Sv;
-  for (int it = 0; it < 15; ++it)
-  {
-    if (!evaluate(p.x(), p.y(), &S, &Su, &Sv))
-      return false;
-    Eigen::Matrix<double, 3, 2> J;
-    J << Pperp * Su, Pperp * Sv;
-    const Eigen::Matrix2d A = J.transpose() * J;
-    if (!(A.determinant() > 1e-30))
-      return false;
-    Eigen::Vector2d step = -A.inverse() * (J.transpose() * (Pperp * S));
-    const double len = step.norm();
-    if (len > 1.0)
-      step /= len;
-    p += step;
-    if (p.x() < 0.0 || p.y() < 0.0 || p.x() > rows_ - 1 || p.y() > cols_ - 1)
-      return false;
-    if (len < 1e-8)
-      break;
-  }
-  if (!evaluate(p.x(), p.y(), &S))
-    return false;
-  // The ray must actually pass through the surface, not just near it.
-  if ((Pperp * S).norm() > 1e-6 * S.norm() || S.dot(d) <= 0.0)
-    return false;
-  *uv = p;
-  *hit = S;
-  return true;
-}
-
-// ---------------------------------------------------------------------------
-// Registration
 
 std::string PoseDeltaParams::validate() const
 {
@@ -389,317 +78,22 @@ std::string PoseDeltaParams::validate() const
   return s;
 }
 
-RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
-                                     const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
-                                     const std::vector<Eigen::Vector3d>& current,
-                                     const std::vector<TextureConstraint>& texture, double focal_px,
-                                     const Eigen::Isometry3d& initial, const PoseDeltaParams& config)
-{
-  RegistrationOutput out;
-  out.transform = initial;
-  const int cols = std::max(reference_surface.cols(), 1);
-  const bool reverse = current_surface != nullptr && !current_surface->empty();
-  // Both directions see the same two sets of measurements: halve each so the
-  // information is not counted twice.
-  const double direction_weight = reverse ? 0.5 : 1.0;
-
-  std::vector<Eigen::Vector2d> uv_fwd(current.size()), uv_rev(reference.size());
-  for (size_t i = 0; i < current.size(); ++i)
-    uv_fwd[i] = Eigen::Vector2d(static_cast<double>(i / cols), static_cast<double>(i % cols));
-  for (size_t j = 0; j < reference.size(); ++j)
-    uv_rev[j] = Eigen::Vector2d(static_cast<double>(j / cols), static_cast<double>(j % cols));
-
-  Matrix6d prior = Matrix6d::Zero();
-  for (int a = 0; a < 3; ++a)
-  {
-    prior(a, a) = 1.0 / (config.prior_sigma_translation_m * config.prior_sigma_translation_m);
-    prior(a + 3, a + 3) = 1.0 / (config.prior_sigma_rotation_rad * config.prior_sigma_rotation_rad);
-  }
-
-  struct GeoRow
-  {
-    Eigen::Matrix<double, 1, 6> J;
-    double r;
-    double w;
-  };
-  std::vector<GeoRow> geo;
-  std::vector<Eigen::Matrix<double, 2, 6>> tex_J;
-  std::vector<Eigen::Vector2d> tex_r;
-  std::vector<Eigen::Vector2d> tex_Jd;  // derivative of the residual by the feature's depth
-  std::vector<size_t> tex_index;        // texture constraint of each row
-  // Feature depths along their reference rays: unknowns when their prior
-  // sigma is positive, eliminated per feature (Schur complement) so the pose
-  // system stays 6x6.
-  std::vector<Eigen::Vector3d> tex_ray(texture.size());
-  std::vector<double> tex_depth0(texture.size()), tex_depth(texture.size());
-  for (size_t k = 0; k < texture.size(); ++k)
-  {
-    tex_depth0[k] = texture[k].point_ref.norm();
-    tex_ray[k] = tex_depth0[k] > 0.0 ? Eigen::Vector3d(texture[k].point_ref / tex_depth0[k]) : Eigen::Vector3d::Zero();
-  }
-  tex_depth = tex_depth0;
-  struct DepthElimination
-  {
-    size_t k;
-    Vector6d B;
-    double C;
-    double g;
-  };
-  std::vector<DepthElimination> eliminated;
-  geo.reserve(current.size() + reference.size());
-
-  // Scene depth: converts rotations into metres of motion at the rock.
-  double depth = 1.0;
-  {
-    std::vector<double> z;
-    for (const Eigen::Vector3d& q : current)
-      if (usable(q))
-        z.push_back(q.norm());
-    if (!z.empty())
-      depth = median(z);
-  }
-  const double freeze_sigma =
-      config.freeze_factor * std::max(config.max_sigma_translation_m, config.max_sigma_rotation_rad * depth);
-
-  Eigen::Isometry3d T = initial;
-  double sigma_g = config.min_geometry_sigma_m, sigma_t = config.min_texture_sigma_px;
-  Matrix6d H_data = Matrix6d::Zero();
-  int forward_used = 0;
-  double sum_r2 = 0.0;
-  const int max_it = config.max_iterations;
-  Vector6d scale;
-  scale << 1.0, 1.0, 1.0, depth, depth, depth;
-  // Directions of the update (scaled coordinates): all six at first.
-  Eigen::Matrix<double, 6, Eigen::Dynamic> V = Matrix6d::Identity();
-  for (int phase = 0; phase < 2; ++phase)
-  {
-    bool converged = false;
-    for (int it = 0; it <= max_it; ++it)
-    {
-      // Linearise at T.
-      geo.clear();
-      tex_J.clear();
-      tex_r.clear();
-      forward_used = 0;
-      const Eigen::Matrix3d R = T.linear();
-      const Eigen::Isometry3d Tinv = T.inverse();
-      for (size_t i = 0; i < current.size(); ++i)
-      {
-        const Eigen::Vector3d& q = current[i];
-        if (!usable(q))
-          continue;
-        const Eigen::Vector3d x = Tinv * q;
-        Eigen::Vector3d foot, n;
-        if (!reference_surface.closestPoint(x, &uv_fwd[i], &foot, &n))
-        {
-          uv_fwd[i] = Eigen::Vector2d(static_cast<double>(i / cols), static_cast<double>(i % cols));
-          continue;
-        }
-        const Eigen::Vector3d m = R * n;
-        GeoRow row;
-        row.J << -m.transpose(), m.cross(q).transpose();
-        row.r = n.dot(x - foot);
-        row.w = direction_weight;
-        geo.push_back(row);
-        ++forward_used;
-      }
-      if (reverse)
-      {
-        for (size_t j = 0; j < reference.size(); ++j)
-        {
-          if (!usable(reference[j]))
-            continue;
-          const Eigen::Vector3d y = T * reference[j];
-          Eigen::Vector3d foot, n;
-          if (!current_surface->closestPoint(y, &uv_rev[j], &foot, &n))
-          {
-            uv_rev[j] = Eigen::Vector2d(static_cast<double>(j / cols), static_cast<double>(j % cols));
-            continue;
-          }
-          GeoRow row;
-          row.J << n.transpose(), y.cross(n).transpose();
-          row.r = n.dot(y - foot);
-          row.w = direction_weight;
-          geo.push_back(row);
-        }
-      }
-      tex_Jd.clear();
-      tex_index.clear();
-      for (size_t k = 0; k < texture.size(); ++k)
-      {
-        const TextureConstraint& tc = texture[k];
-        const Eigen::Vector3d y = T * Eigen::Vector3d(tex_depth[k] * tex_ray[k]);
-        if (!(y.z() > 1e-6))
-          continue;
-        const double iz = 1.0 / y.z();
-        Eigen::Matrix<double, 2, 3> dpi;
-        dpi << iz, 0.0, -y.x() * iz * iz, 0.0, iz, -y.y() * iz * iz;
-        dpi *= focal_px;
-        Eigen::Matrix<double, 3, 6> dy;
-        dy << Eigen::Matrix3d::Identity(), -skew(y);
-        tex_J.push_back(dpi * dy);
-        tex_Jd.push_back(dpi * (R * tex_ray[k]));
-        tex_index.push_back(k);
-        tex_r.push_back(focal_px * (Eigen::Vector2d(y.x() * iz, y.y() * iz) - tc.observed_normalized));
-      }
-
-      // Robust scales (MAD), floored by the expected noise.
-      {
-        std::vector<double> a;
-        a.reserve(geo.size());
-        for (const GeoRow& g : geo)
-          a.push_back(std::abs(g.r));
-        sigma_g = std::max(config.min_geometry_sigma_m, 1.4826 * median(a));
-        a.clear();
-        for (const Eigen::Vector2d& e : tex_r)
-        {
-          a.push_back(std::abs(e.x()));
-          a.push_back(std::abs(e.y()));
-        }
-        sigma_t = std::max(config.min_texture_sigma_px, 1.4826 * median(a));
-      }
-
-      Matrix6d H = Matrix6d::Zero();
-      Vector6d g = Vector6d::Zero();
-      sum_r2 = 0.0;
-      const double kg = config.huber_k * sigma_g, kt = config.huber_k * sigma_t;
-      for (const GeoRow& row : geo)
-      {
-        const double ar = std::abs(row.r);
-        const double huber = ar <= kg ? 1.0 : kg / ar;
-        const double w = row.w * huber / (sigma_g * sigma_g);
-        H.noalias() += w * row.J.transpose() * row.J;
-        g.noalias() += w * row.J.transpose() * row.r;
-        sum_r2 += row.r * row.r;
-      }
-      const Matrix6d H_geometry = H;
-      int tex_used = 0;
-      eliminated.clear();
-      for (size_t k = 0; k < tex_r.size(); ++k)
-      {
-        const double ar = tex_r[k].norm();
-        // Huber while the pose settles, then Tukey's biweight: a feature on
-        // something that does not move with the rock (a shadow edge, the
-        // rim of the view, a dot) gets no weight at all instead of a pull
-        // that many of them would add up.
-        double robust = ar <= kt ? 1.0 : kt / ar;
-        if (it > 2)
-        {
-          const double u = ar / (kTukeyC * sigma_t);
-          if (u >= 1.0)
-            continue;
-          robust = (1.0 - u * u) * (1.0 - u * u);
-        }
-        const double w = robust / (sigma_t * sigma_t);
-        const size_t f = tex_index[k];
-        const double sd = texture[f].depth_sigma_m;
-        if (sd > 0.0)
-        {
-          // Marginalise the depth: its prior and the feature's own parallax.
-          DepthElimination e;
-          e.k = f;
-          e.B = w * tex_J[k].transpose() * tex_Jd[k];
-          e.C = w * tex_Jd[k].squaredNorm() + 1.0 / (sd * sd);
-          e.g = w * tex_Jd[k].dot(tex_r[k]) + (tex_depth[f] - tex_depth0[f]) / (sd * sd);
-          H.noalias() += w * tex_J[k].transpose() * tex_J[k] - e.B * e.B.transpose() / e.C;
-          g.noalias() += w * tex_J[k].transpose() * tex_r[k] - e.B * (e.g / e.C);
-          eliminated.push_back(e);
-        }
-        else
-        {
-          H.noalias() += w * tex_J[k].transpose() * tex_J[k];
-          g.noalias() += w * tex_J[k].transpose() * tex_r[k];
-        }
-        ++tex_used;
-      }
-      out.features_used = tex_used;
-      // What the solution is worth (covariance, frozen directions): the
-      // texture's errors are correlated between features, so its information
-      // is deflated; the step above weights each feature as if independent.
-      const double inflation2 = config.texture_error_inflation * config.texture_error_inflation;
-      H_data = H_geometry + (H - H_geometry) / inflation2;
-      out.iterations = it;
-      if (it == max_it || geo.empty() || converged)
-        break;
-
-      // Weak prior towards the initial guess keeps unobservable directions put.
-      Vector6d prior_r;
-      const Eigen::Isometry3d D = T * initial.inverse();
-      prior_r << D.translation(), logSO3(D.linear());
-      const Matrix6d A = H + prior;
-      const Vector6d b = g + prior * prior_r;
-      if (V.cols() == 0)
-        break;
-      const Matrix6d As = scale.cwiseInverse().asDiagonal() * A * scale.cwiseInverse().asDiagonal();
-      const Vector6d bs = scale.cwiseInverse().asDiagonal() * b;
-      const Eigen::MatrixXd Ar = V.transpose() * As * V;
-      const Eigen::VectorXd step_r = -Ar.ldlt().solve(V.transpose() * bs);
-      const Vector6d delta = scale.cwiseInverse().asDiagonal() * (V * step_r);
-      if (!delta.allFinite())
-        break;
-      T = applyIncrement(delta, T);
-      for (const DepthElimination& e : eliminated)
-        tex_depth[e.k] -= (e.g + e.B.dot(delta)) / e.C;
-      // Once settled, one more pass evaluates residuals and information at the solution.
-      converged = delta.head<3>().norm() < 1e-6 && delta.tail<3>().norm() < 5e-7;  // 1 um, 0.5 urad: far below the noise
-    }
-    if (phase == 1)
-      break;
-    // Directions the data cannot fix to within the validity bounds must not
-    // move at all: the estimate is the next frame's initial guess, and noise
-    // would make them random-walk from frame to frame. Decided at the solution
-    // (where the residual scales are the noise, not the initial misalignment),
-    // then solved again from the initial guess with those directions frozen.
-    // Rotations are scaled by the scene depth so that both halves are metres.
-    const Matrix6d Hs = scale.cwiseInverse().asDiagonal() * H_data * scale.cwiseInverse().asDiagonal();
-    // Hs is symmetric positive semi-definite, so its SVD is its eigen
-    // decomposition (and Jacobi SVD avoids a GCC false positive that the
-    // tridiagonalising eigen solver triggers with -Wall).
-    const Eigen::JacobiSVD<Matrix6d> eig(Hs, Eigen::ComputeFullU);
-    const double min_info = 1.0 / (freeze_sigma * freeze_sigma);
-    Eigen::Matrix<double, 6, Eigen::Dynamic> kept(6, 0);
-    for (int k = 0; k < 6; ++k)
-    {
-      if (eig.singularValues()[k] >= min_info)
-      {
-        kept.conservativeResize(Eigen::NoChange, kept.cols() + 1);
-        kept.col(kept.cols() - 1) = eig.matrixU().col(k);
-      }
-    }
-    if (kept.cols() == 6)
-      break;
-    V = kept;
-    T = initial;
-    tex_depth = tex_depth0;
-  }
-  out.transform = T;
-  out.information = H_data;
-  Matrix6d prior_only = Matrix6d::Zero();
-  for (int a = 0; a < 6; ++a)
-    prior_only(a, a) = prior(a, a);
-  out.covariance = (H_data + prior_only).inverse();
-  out.points_used = forward_used;
-  out.sigma_geometry_m = sigma_g;
-  out.sigma_texture_px = sigma_t;
-  out.rms_geometry_m = geo.empty() ? 0.0 : std::sqrt(sum_r2 / static_cast<double>(geo.size()));
-  return out;
-}
-
-// ---------------------------------------------------------------------------
-// Estimator
-
 struct PoseDeltaEstimator::Frame
 {
   int rows = 0;
   int cols = 0;
   std::vector<Eigen::Vector3d> points;
   BeamSurface surface;
-  std::vector<Eigen::Vector3d> features_3d;  // texture features lifted onto the surface (reference frame)
-  std::vector<double> features_sigma;        // 1-sigma of each feature's depth (0 = fixed)
-  bool has_image = false;
 };
 
-PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaParams& config) : tracker_(new TextureTracker)
+struct PoseDeltaEstimator::TextureMeasurement
+{
+  std::vector<TextureConstraint> constraints;
+  std::string note;        // why the texture is not used ("" when used or not wanted)
+  bool predicted = false;  // the initial guess comes from the coarse texture fit
+};
+
+PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaParams& config) : texture_(new TextureLandmarks)
 {
   setParams(config);
 }
@@ -728,11 +122,7 @@ void PoseDeltaEstimator::setCamera(const CameraModel& camera)
   has_camera_ = true;
   // Lifted features depend on the intrinsics; a new camera needs a new reference image.
   if (changed && reference_)
-  {
-    tracker_->clear();
-    reference_->features_3d.clear();
-    reference_->features_sigma.clear();
-  }
+    texture_->dropFeatures();
 }
 
 void PoseDeltaEstimator::requestLock()
@@ -744,7 +134,7 @@ void PoseDeltaEstimator::reset(bool lock_on_next_frame)
 {
   has_reference_ = false;
   reference_.reset();
-  tracker_->clear();
+  texture_->clear();
   last_estimate_ = Eigen::Isometry3d::Identity();
   chained_ = Eigen::Isometry3d::Identity();
   chained_covariance_ = Matrix6d::Zero();
@@ -763,31 +153,13 @@ std::string PoseDeltaEstimator::checkMap(const PoseDeltaInput& frame, int* valid
     return "cloud layout " + std::to_string(frame.rows) + "x" + std::to_string(frame.cols) +
            " is not a 2D grid of beams (a surface needs at least 2x2)";
   for (const Eigen::Vector3d& p : frame.points)
-    *valid_points += usable(p) ? 1 : 0;
+    *valid_points += isUsablePoint(p) ? 1 : 0;
   if (*valid_points == 0)
     return "no valid point in the cloud (all NaN)";
   if (*valid_points < config_.min_points)
     return "too few points: " + std::to_string(*valid_points) + " valid, need " + std::to_string(config_.min_points);
   return "";
 }
-
-namespace
-{
-std::vector<cv::Point2f> projectAll(const CameraModel& camera, const std::vector<Eigen::Vector3d>& points)
-{
-  std::vector<cv::Point2f> px;
-  px.reserve(points.size());
-  for (const Eigen::Vector3d& p : points)
-  {
-    if (!usable(p))
-      continue;
-    const cv::Point2d q = camera.project(p);
-    if (std::isfinite(q.x) && std::isfinite(q.y))
-      px.emplace_back(static_cast<float>(q.x), static_cast<float>(q.y));
-  }
-  return px;
-}
-}  // namespace
 
 void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
 {
@@ -796,75 +168,10 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
   ref->cols = frame.cols;
   ref->points = frame.points;
   ref->surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
-  tracker_->clear();
+  texture_->clear();
   if (config_.use_texture && has_camera_ && !frame.image.empty() && frame.image.cols == camera_.width &&
       frame.image.rows == camera_.height)
-  {
-    TextureTrackerConfig tc;
-    tc.max_features = config_.texture_max_features;
-    tc.quality = config_.texture_quality;
-    tc.min_distance_px = config_.texture_min_distance_px;
-    tc.window_px = config_.texture_window_px;
-    tc.pyramid_levels = config_.texture_pyramid_levels;
-    tc.dot_clearance_px = config_.texture_dot_clearance_px;
-    tc.roi_margin_px = config_.texture_roi_margin_px;
-    tc.photometric_refinement = config_.texture_refinement_window_px > 0;
-    tc.refinement_window_px = std::max(config_.texture_refinement_window_px, 3);
-    *tracker_ = TextureTracker(tc);
-    // Features where the dot map gives depth (the box of the dots) or, by
-    // default, anywhere in the image: off the map their depth comes from a
-    // plane through the reference points and stays an unknown of the solve.
-    const std::vector<cv::Point2f> dots = projectAll(camera_, frame.points);
-    if (!dots.empty())
-    {
-      const cv::Rect region = config_.texture_whole_image ? cv::Rect(0, 0, frame.image.cols, frame.image.rows)
-                                                          : cv::boundingRect(dots);
-      tracker_->setReference(frame.image, frame.texture_channel, region, dots);
-      // Least-squares plane of the reference points, and their scatter about it.
-      Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-      int n = 0;
-      for (const Eigen::Vector3d& p : frame.points)
-        if (usable(p))
-        {
-          centre += p;
-          ++n;
-        }
-      centre /= std::max(n, 1);
-      Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-      for (const Eigen::Vector3d& p : frame.points)
-        if (usable(p))
-          scatter += (p - centre) * (p - centre).transpose();
-      const Eigen::JacobiSVD<Eigen::Matrix3d> plane(scatter, Eigen::ComputeFullU);
-      const Eigen::Vector3d normal = plane.matrixU().col(2);
-      const double plane_rms = std::sqrt(plane.singularValues()[2] / std::max(n, 1));
-      const double outside_sigma = std::max(config_.texture_extrapolated_depth_sigma_m, 3.0 * plane_rms);
-      std::vector<uint8_t> keep(tracker_->features().size(), 0);
-      for (size_t k = 0; k < keep.size(); ++k)
-      {
-        Eigen::Vector2d uv(kNaN, kNaN);
-        Eigen::Vector3d X;
-        const cv::Point2f& f = tracker_->features()[k];
-        const Eigen::Vector3d ray = camera_.ray(cv::Point2d(f.x, f.y)).normalized();
-        if (ref->surface.intersectRay(ray, &uv, &X))
-        {
-          keep[k] = 1;
-          ref->features_3d.push_back(X);
-          ref->features_sigma.push_back(config_.texture_depth_sigma_m);
-          continue;
-        }
-        const double along = normal.dot(ray);
-        const double depth = std::abs(along) > 0.2 ? normal.dot(centre) / along : -1.0;
-        if (config_.texture_whole_image && config_.texture_depth_sigma_m > 0.0 && depth > 0.0)
-        {
-          keep[k] = 1;
-          ref->features_3d.push_back(depth * ray);
-          ref->features_sigma.push_back(outside_sigma);
-        }
-      }
-      tracker_->retain(keep);
-      ref->has_image = true;
-    }
-  }
+    texture_->lock(config_, camera_, frame.image, frame.texture_channel, frame.points, ref->surface);
   reference_ = std::move(ref);
   has_reference_ = true;
   lock_pending_ = false;
@@ -873,6 +180,8 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
 
 PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
 {
+  // Until there is a solution: the last estimate, with the prior's
+  // uncertainty on every axis.
   PoseDeltaResult result;
   result.covariance = Matrix6d::Zero();
   for (int a = 0; a < 6; ++a)
@@ -883,229 +192,222 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   result.transform = chained ? Eigen::Isometry3d(last_estimate_ * chained_) : last_estimate_;
 
   int valid_points = 0;
-  const std::string bad = checkMap(frame, &valid_points);
+  std::string bad = checkMap(frame, &valid_points);
   if (!bad.empty())
   {
     result.status = bad + (has_reference_ ? "" : "; no reference locked yet");
     return result;
   }
-
-  if (!lock_pending_ && !has_reference_)
+  bad = referenceFor(frame, &result);
+  if (!bad.empty())
   {
-    result.status = "no reference locked: call the pose_delta/lock service";
+    result.status = bad;
     return result;
   }
+
+  // Texture: track the reference features into this image, starting where
+  // the last estimate puts them.
+  Eigen::Isometry3d initial = last_estimate_;
+  TextureMeasurement texture;
+  if (config_.use_texture)
+    texture = measureTexture(frame, &initial);
+  const RegistrationOutput reg = registerFrame(frame, texture, initial);
+  report(reg, texture, valid_points, &result);
+  advance(frame, result, reg);
+  return result;
+}
+
+std::string PoseDeltaEstimator::referenceFor(const PoseDeltaInput& frame, PoseDeltaResult* result)
+{
+  if (!lock_pending_ && !has_reference_)
+    return "no reference locked: call the pose_delta/lock service";
   if (lock_pending_)
   {
     BeamSurface probe;
     probe.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
     if (probe.validCells() < 4)
-    {
-      result.status = "cannot lock on this map: only " + std::to_string(probe.validCells()) +
-                      " surface cells between valid neighbouring dots";
-      return result;
-    }
+      return "cannot lock on this map: only " + std::to_string(probe.validCells()) +
+             " surface cells between valid neighbouring dots";
     lock(frame);
     chained_ = Eigen::Isometry3d::Identity();
     chained_covariance_ = Matrix6d::Zero();
-    result.locked_now = true;
-    result.transform = Eigen::Isometry3d::Identity();
+    result->locked_now = true;
+    result->transform = Eigen::Isometry3d::Identity();
   }
-
   if (frame.rows != reference_->rows || frame.cols != reference_->cols)
-  {
-    result.status = "cloud layout " + std::to_string(frame.rows) + "x" + std::to_string(frame.cols) +
-                    " differs from the reference's " + std::to_string(reference_->rows) + "x" +
-                    std::to_string(reference_->cols) + "; lock again (pose_delta/lock)";
-    return result;
-  }
+    return "cloud layout " + std::to_string(frame.rows) + "x" + std::to_string(frame.cols) +
+           " differs from the reference's " + std::to_string(reference_->rows) + "x" +
+           std::to_string(reference_->cols) + "; lock again (pose_delta/lock)";
+  return "";
+}
 
+std::string PoseDeltaEstimator::textureUnavailable(const PoseDeltaInput& frame) const
+{
+  if (!has_camera_)
+    return "no camera_info for the texture";
+  if (!texture_->hasReferenceImage())
+    return "the reference has no image (lock again with images flowing)";
+  if (texture_->empty())
+    return "no trackable texture in the reference image";
+  if (frame.image.empty())
+    return "no image for this cloud";
+  if (frame.image.cols != camera_.width || frame.image.rows != camera_.height)
+    return "image size differs from camera_info";
+  return "";
+}
+
+bool PoseDeltaEstimator::refit(const PoseDeltaInput& frame, const std::vector<TextureConstraint>& texture,
+                               double focal_px, const PoseDeltaParams& params, Eigen::Isometry3d* pose) const
+{
+  const RegistrationOutput fit = registerToSurface(reference_->surface, reference_->points, nullptr, frame.points,
+                                                   texture, focal_px, *pose, params);
+  if (fit.points_used < config_.min_points || !fit.transform.matrix().allFinite())
+    return false;
+  *pose = fit.transform;
+  return true;
+}
+
+PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const PoseDeltaInput& frame,
+                                                                          Eigen::Isometry3d* initial)
+{
+  TextureMeasurement m;
+  m.note = textureUnavailable(frame);
+  if (!m.note.empty())
+    return m;
+  // Geometry first: on a rough rock it places the features to within a
+  // pixel or two, on any surface it fixes distance and tilts.
+  // Only a prediction: one direction, a few iterations, no second phase;
+  // a firm prior keeps the axes a smooth surface leaves free near the
+  // last estimate (with the weak one they wander by degrees on noise).
+  refit(frame, {}, 1.0, predictionParams(config_, true), initial);
+  if (!texture_->setFrame(camera_, frame.image, frame.texture_channel, frame.points))
+  {
+    m.note = "image unusable for tracking";
+    return m;
+  }
+  std::vector<TextureConstraint> tracked;
+  if (config_.texture_refinement_window_px > 0)
+  {
+    // A few features tracked over the pyramid (wide capture range) fix
+    // the in-plane axes well enough to predict every feature to a
+    // fraction of a pixel; the gain-and-offset refinement from there is
+    // the measurement, and costs a fraction of pyramidal tracking.
+    const std::vector<TextureConstraint> coarse = texture_->trackCoarse(*initial);
+    if (static_cast<int>(coarse.size()) >= kMinCoarseFeatures)
+      m.predicted = refit(frame, coarse, camera_.fx, predictionParams(config_, false), initial);
+    tracked = texture_->refineAll(*initial);
+  }
+  else
+    tracked = texture_->trackAll(*initial);
+  if (static_cast<int>(tracked.size()) < config_.texture_min_features)
+    m.note = "only " + std::to_string(tracked.size()) + " texture features tracked";
+  else
+    m.constraints = std::move(tracked);
+  return m;
+}
+
+RegistrationOutput PoseDeltaEstimator::registerFrame(const PoseDeltaInput& frame, const TextureMeasurement& texture,
+                                                     const Eigen::Isometry3d& initial) const
+{
   BeamSurface current_surface;
   if (config_.symmetric)
     current_surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
-
-  // Texture: track the reference features into this image, starting where
-  // the last estimate puts them.
-  Eigen::Isometry3d initial = last_estimate_;
-  std::vector<TextureConstraint> texture;
-  std::string texture_note;
-  bool texture_predicted = false;  // `initial` comes from the coarse texture fit
-  const bool texture_wanted = config_.use_texture;
-  if (texture_wanted)
-  {
-    if (!has_camera_)
-      texture_note = "no camera_info for the texture";
-    else if (!reference_->has_image)
-      texture_note = "the reference has no image (lock again with images flowing)";
-    else if (tracker_->empty())
-      texture_note = "no trackable texture in the reference image";
-    else if (frame.image.empty())
-      texture_note = "no image for this cloud";
-    else if (frame.image.cols != camera_.width || frame.image.rows != camera_.height)
-      texture_note = "image size differs from camera_info";
-    else
-    {
-      // Geometry first: on a rough rock it places the features to within a
-      // pixel or two, on any surface it fixes distance and tilts.
-      // Only a prediction: one direction, a few iterations, no second phase;
-      // a firm prior keeps the axes a smooth surface leaves free near the
-      // last estimate (with the weak one they wander by degrees on noise).
-      PoseDeltaParams quick = config_;
-      quick.max_iterations = std::min(config_.max_iterations, 6);
-      quick.freeze_factor = 1e9;
-      quick.prior_sigma_translation_m = std::min(config_.prior_sigma_translation_m, kPredictionPriorM);
-      quick.prior_sigma_rotation_rad = std::min(config_.prior_sigma_rotation_rad, kPredictionPriorRad);
-      const RegistrationOutput geo = registerToSurface(reference_->surface, reference_->points, nullptr,
-                                                       frame.points, {}, 1.0, initial, quick);
-      if (geo.points_used >= config_.min_points && geo.transform.matrix().allFinite())
-        initial = geo.transform;
-      const std::vector<Eigen::Vector3d>& X = reference_->features_3d;
-      const std::vector<double>& Xs = reference_->features_sigma;
-      auto predict = [&](const Eigen::Isometry3d& T)
-      {
-        std::vector<cv::Point2f> px(X.size());
-        for (size_t k = 0; k < X.size(); ++k)
-        {
-          const cv::Point2d p = camera_.project(T * X[k]);
-          px[k] = cv::Point2f(static_cast<float>(p.x), static_cast<float>(p.y));
-        }
-        return px;
-      };
-      auto constraints = [&](const std::vector<cv::Point2f>& tracked, const std::vector<uint8_t>& ok)
-      {
-        std::vector<TextureConstraint> c;
-        for (size_t k = 0; k < X.size(); ++k)
-          if (ok[k])
-            c.push_back({X[k], camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y)), Xs[k]});
-        return c;
-      };
-      const std::vector<cv::Point2f> dots = projectAll(camera_, frame.points);
-      std::vector<cv::Point2f> tracked;
-      std::vector<uint8_t> ok;
-      int n = 0;
-      if (!tracker_->setFrame(frame.image, frame.texture_channel))
-        texture_note = "image unusable for tracking";
-      else if (config_.texture_refinement_window_px > 0)
-      {
-        // A few features tracked over the pyramid (wide capture range) fix
-        // the in-plane axes well enough to predict every feature to a
-        // fraction of a pixel; the gain-and-offset refinement from there is
-        // the measurement, and costs a fraction of pyramidal tracking.
-        const size_t stride = std::max<size_t>(1, X.size() / kCoarseFeatures);
-        std::vector<uint8_t> coarse(X.size(), 0);
-        for (size_t k = 0; k < X.size(); k += stride)
-          coarse[k] = 1;
-        if (tracker_->trackPyramidal(predict(initial), coarse, dots, &tracked, &ok) >= kMinCoarseFeatures)
-        {
-          PoseDeltaParams quick = config_;
-          quick.max_iterations = std::min(config_.max_iterations, 6);
-          quick.freeze_factor = 1e9;
-          const RegistrationOutput coarse_fit =
-              registerToSurface(reference_->surface, reference_->points, nullptr, frame.points,
-                                constraints(tracked, ok), camera_.fx, initial, quick);
-          if (coarse_fit.points_used >= config_.min_points && coarse_fit.transform.matrix().allFinite())
-          {
-            initial = coarse_fit.transform;
-            texture_predicted = true;
-          }
-        }
-        n = tracker_->refineAll(predict(initial), dots, &tracked, &ok);
-      }
-      else
-        n = tracker_->trackPyramidal(predict(initial), {}, dots, &tracked, &ok);
-      if (texture_note.empty() && n < config_.texture_min_features)
-        texture_note = "only " + std::to_string(n) + " texture features tracked";
-      else if (texture_note.empty())
-        texture = constraints(tracked, ok);
-    }
-  }
-
   // From the texture's coarse fit the solve settles in a few iterations;
   // beyond that the robust weights of a few marginal features only flip.
   PoseDeltaParams solve = config_;
-  if (texture_predicted)
+  if (texture.predicted)
     solve.max_iterations = std::min(config_.max_iterations, kIterationsAfterCoarseFit);
-  const RegistrationOutput reg =
-      registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
-                        frame.points, texture, has_camera_ ? camera_.fx : 1.0, initial, solve);
-  result.points_used = reg.points_used;
-  result.features_used = reg.features_used;
-  result.iterations = reg.iterations;
-  result.sigma_geometry_m = reg.sigma_geometry_m;
-  result.sigma_texture_px = texture.empty() ? 0.0 : reg.sigma_texture_px;
-  result.rms_residual_m = reg.rms_geometry_m;
+  return registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
+                           frame.points, texture.constraints, has_camera_ ? camera_.fx : 1.0, initial, solve);
+}
 
-  Matrix6d cov = reg.covariance;
-  Eigen::Isometry3d estimate = reg.transform;
-  if (chained)
+void PoseDeltaEstimator::report(const RegistrationOutput& reg, const TextureMeasurement& texture, int valid_points,
+                                PoseDeltaResult* result) const
+{
+  result->points_used = reg.points_used;
+  result->features_used = reg.features_used;
+  result->iterations = reg.iterations;
+  result->sigma_geometry_m = reg.sigma_geometry_m;
+  result->sigma_texture_px = texture.constraints.empty() ? 0.0 : reg.sigma_texture_px;
+  result->rms_residual_m = reg.rms_geometry_m;
+  result->transform = reg.transform;
+  result->covariance = reg.covariance;
+  if (config_.mode == PoseDeltaMode::kFrameToFrame)
   {
+    // The chain so far is uncertain on its own (left) side.
     const Matrix6d A = adjoint(reg.transform);
-    cov = reg.covariance + A * chained_covariance_ * A.transpose();
-    estimate = reg.transform * chained_;
+    result->covariance = reg.covariance + A * chained_covariance_ * A.transpose();
+    result->transform = reg.transform * chained_;
   }
-  result.transform = estimate;
-  result.covariance = cov;
 
-  std::ostringstream status;
   std::string unobservable;
   for (int a = 0; a < 6; ++a)
   {
-    const double sigma = std::sqrt(std::max(0.0, cov(a, a)));
+    const double sigma = std::sqrt(std::max(0.0, result->covariance(a, a)));
     const double bound = a < 3 ? config_.max_sigma_translation_m : config_.max_sigma_rotation_rad;
-    result.unobservable[a] = !(sigma <= bound);
-    if (result.unobservable[a])
+    result->unobservable[a] = !(sigma <= bound);
+    if (result->unobservable[a])
       unobservable += std::string(unobservable.empty() ? "" : " ") + kAxisNames[a];
   }
   const bool enough = reg.points_used >= config_.min_points;
   const bool residual_ok = reg.rms_geometry_m <= config_.max_rms_residual_m;
-  result.valid = enough && residual_ok && unobservable.empty();
+  result->valid = enough && residual_ok && unobservable.empty();
+  result->status = describe(*result, valid_points, enough, residual_ok, unobservable, texture.note);
+}
+
+std::string PoseDeltaEstimator::describe(const PoseDeltaResult& result, int valid_points, bool enough, bool residual_ok,
+                                         const std::string& unobservable, const std::string& texture_note) const
+{
+  std::ostringstream status;
   if (!enough)
-    status << "too few points on the reference surface: " << reg.points_used << " of " << valid_points << " (need "
+    status << "too few points on the reference surface: " << result.points_used << " of " << valid_points << " (need "
            << config_.min_points << "; the rig moved off the mapped rock?)";
   else if (!residual_ok)
-    status << "residual " << reg.rms_geometry_m * 1e3 << " mm exceeds " << config_.max_rms_residual_m * 1e3
+    status << "residual " << result.rms_residual_m * 1e3 << " mm exceeds " << config_.max_rms_residual_m * 1e3
            << " mm: the surface does not match the reference";
   else if (!unobservable.empty())
   {
     status << "unobservable: " << unobservable << " (";
-    if (!texture_wanted)
+    if (!config_.use_texture)
       status << "smooth or flat surface, texture off";
     else if (!texture_note.empty())
       status << "smooth or flat surface; texture unused: " << texture_note;
     else
-      status << "weak geometry and texture: " << reg.features_used << " features";
+      status << "weak geometry and texture: " << result.features_used << " features";
     status << ")";
   }
   else
   {
-    status << "ok: " << reg.points_used << " points";
-    if (texture_wanted)
+    status << "ok: " << result.points_used << " points";
+    if (config_.use_texture)
     {
       if (texture_note.empty())
-        status << ", " << reg.features_used << " texture features";
+        status << ", " << result.features_used << " texture features";
       else
         status << ", texture unused: " << texture_note;
     }
   }
   if (result.locked_now)
     status << "; reference locked on this frame";
-  result.status = status.str();
+  return status.str();
+}
 
-  // The next frame starts from the last valid estimate: an invalid one may
-  // carry garbage on its weak axes, and a wrong texture prediction does not
-  // recover by itself.
-  if (result.valid)
+// The next frame starts from the last valid estimate: an invalid one may
+// carry garbage on its weak axes, and a wrong texture prediction does not
+// recover by itself.
+void PoseDeltaEstimator::advance(const PoseDeltaInput& frame, const PoseDeltaResult& result,
+                                 const RegistrationOutput& reg)
+{
+  if (!result.valid)
+    return;
+  if (config_.mode == PoseDeltaMode::kFrameToFrame)
   {
-    if (chained)
-    {
-      chained_ = estimate;
-      chained_covariance_ = cov;
-      lock(frame);
-    }
-    else
-      last_estimate_ = reg.transform;
+    chained_ = result.transform;
+    chained_covariance_ = result.covariance;
+    lock(frame);
   }
-  return result;
+  else
+    last_estimate_ = reg.transform;
 }
 
 }  // namespace structured_light_stabilizer

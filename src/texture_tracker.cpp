@@ -212,6 +212,28 @@ void TextureTracker::clear()
   roi_ = cv::Rect();
 }
 
+std::vector<cv::Point2f> TextureTracker::findCorners(const cv::Mat& image, const cv::Mat& mask) const
+{
+  std::vector<cv::Point2f> corners;
+  if (!(config_.photometric_refinement && config_.min_distance_px >= 4.0))
+  {
+    cv::goodFeaturesToTrack(image, corners, config_.max_features, config_.quality, config_.min_distance_px, mask, 5);
+    return corners;
+  }
+  // Corners for a large refinement window are found as well at half
+  // resolution, at a quarter of the cost (the whole image is ~20 ms at full
+  // resolution, and frame_to_frame mode selects on every frame).
+  cv::Mat half, half_mask;
+  cv::pyrDown(image, half);
+  cv::resize(mask, half_mask, half.size(), 0, 0, cv::INTER_NEAREST);
+  cv::goodFeaturesToTrack(half, corners, config_.max_features, config_.quality, 0.5 * config_.min_distance_px,
+                          half_mask, 3);
+  for (cv::Point2f& c : corners)
+    c = cv::Point2f(static_cast<float>(std::min(2 * cvRound(c.x), image.cols - 1)),
+                    static_cast<float>(std::min(2 * cvRound(c.y), image.rows - 1)));
+  return corners;
+}
+
 int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Rect& region,
                                  const std::vector<cv::Point2f>& dots)
 {
@@ -244,25 +266,7 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
   }
   const cv::Rect in_roi(feature_region.x - roi_.x, feature_region.y - roi_.y, feature_region.width,
                         feature_region.height);
-  std::vector<cv::Point2f> corners;
-  if (config_.photometric_refinement && config_.min_distance_px >= 4.0)
-  {
-    // Corners for a large refinement window are found as well at half
-    // resolution, at a quarter of the cost (the whole image is ~20 ms at full
-    // resolution, and frame_to_frame mode selects on every frame).
-    cv::Mat half, half_mask;
-    cv::pyrDown(roi_image(in_roi), half);
-    cv::resize(mask, half_mask, half.size(), 0, 0, cv::INTER_NEAREST);
-    cv::goodFeaturesToTrack(half, corners, config_.max_features, config_.quality, 0.5 * config_.min_distance_px,
-                            half_mask, 3);
-    for (cv::Point2f& c : corners)
-      c = cv::Point2f(static_cast<float>(std::min(2 * cvRound(c.x), feature_region.width - 1)),
-                      static_cast<float>(std::min(2 * cvRound(c.y), feature_region.height - 1)));
-  }
-  else
-    cv::goodFeaturesToTrack(roi_image(in_roi), corners, config_.max_features, config_.quality,
-                            config_.min_distance_px, mask, 5);
-  for (const cv::Point2f& c : corners)
+  for (const cv::Point2f& c : findCorners(roi_image(in_roi), mask))
   {
     const cv::Point2f p(c.x + feature_region.x, c.y + feature_region.y);
     if (!nearDot(p, dots))

@@ -25,7 +25,7 @@
 namespace structured_light_stabilizer
 {
 
-struct TextureTrackerConfig
+struct TextureTrackerParams
 {
   int max_features = 200;
   double quality = 0.005;  // goodFeaturesToTrack quality level
@@ -49,7 +49,7 @@ struct TextureTrackerConfig
 class TextureTracker
 {
 public:
-  explicit TextureTracker(const TextureTrackerConfig& config = TextureTrackerConfig()) : config_(config) {}
+  explicit TextureTracker(const TextureTrackerParams& config = TextureTrackerParams()) : config_(config) {}
 
   // Chooses features in `region` of `image`, at least dot_clearance_px away
   // from every dot in `dots`. Returns the number of features kept.
@@ -75,8 +75,7 @@ public:
   bool setFrame(const cv::Mat& image, int channel);
   // Only the features whose `which` flag is set (all when `which` is empty).
   int trackPyramidal(const std::vector<cv::Point2f>& predicted, const std::vector<uint8_t>& which,
-                     const std::vector<cv::Point2f>& dots, std::vector<cv::Point2f>* tracked,
-                     std::vector<uint8_t>* ok);
+                     const std::vector<cv::Point2f>& dots, std::vector<cv::Point2f>* tracked, std::vector<uint8_t>* ok);
   // Needs photometric_refinement (otherwise nothing is tracked).
   int refineAll(const std::vector<cv::Point2f>& predicted, const std::vector<cv::Point2f>& dots,
                 std::vector<cv::Point2f>* tracked, std::vector<uint8_t>* ok) const;
@@ -91,6 +90,8 @@ private:
     cv::Matx44d inverse_normal;
     bool ok = false;
   };
+  // Corners of `image` (the feature region) where `mask` is set, in its coordinates.
+  std::vector<cv::Point2f> findCorners(const cv::Mat& image, const cv::Mat& mask) const;
   void buildTemplates(const cv::Mat& roi_image, const std::vector<cv::Point2f>& dots);
   bool maskDots(const std::vector<cv::Point2f>& dots, const cv::Point2f& centre, std::vector<float>* mask) const;
   cv::Matx44d normalOf(const Template& t, const std::vector<float>& mask) const;
@@ -113,7 +114,7 @@ private:
     return std::max(config_.window_px, config_.photometric_refinement ? config_.refinement_window_px : 0) / 2 + 1;
   }
 
-  TextureTrackerConfig config_;
+  TextureTrackerParams config_;
   cv::Size image_size_;
   cv::Rect roi_;                            // the part of the image that is tracked
   std::vector<cv::Mat> reference_pyramid_;  // of the ROI

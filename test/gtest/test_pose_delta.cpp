@@ -94,6 +94,36 @@ struct Stats
   }
 };
 
+// Default settings (texture on), jitter +-10 mm / +-1 deg, 0.5 mm point
+// noise, rendered images: locks on the first frame, then 15 random poses.
+// Prints the statistics as `name` and returns them.
+Stats trackWithTexture(const Rock& rock, uint32_t seed, int first_image_seed, const char* name)
+{
+  const ProjectorCalibration proj = defaultProjector();
+  const CameraModel cam = CameraModel::studyDesign();
+  std::mt19937 rng(seed);
+  PoseDeltaEstimator est;
+  est.setCamera(cam);
+  {
+    const auto pts = beamPoints(rock, proj, Eigen::Isometry3d::Identity(), 0.5e-3, &rng);
+    const PoseDeltaResult r0 = est.process(frameOf(pts, renderImage(rock, cam, Eigen::Isometry3d::Identity(), pts, 1)));
+    std::cout << "  lock: " << r0.status << "\n";
+  }
+  Stats s;
+  std::string example;
+  for (int k = 0; k < 15; ++k)
+  {
+    const Eigen::Isometry3d truth = randomDelta(rng, 0.010, 1.0 * kPi / 180);
+    const auto pts = beamPoints(rock, proj, truth, 0.5e-3, &rng);
+    const PoseDeltaResult r = est.process(frameOf(pts, renderImage(rock, cam, truth, pts, first_image_seed + k)));
+    s.add(r.transform, truth, r.valid);
+    example = r.status;
+  }
+  s.print(name);
+  std::cout << "  status: " << example << "\n";
+  return s;
+}
+
 }  // namespace
 
 TEST(BeamSurface, InterpolatesTheRockBetweenTheDots)
@@ -204,29 +234,7 @@ TEST(PoseDelta, RoughRockGeometryBeatsBeamIndexFit)
 // rough rock, jitter +-10 mm / +-1 deg, 0.5 mm point noise, rendered images.
 TEST(PoseDelta, RoughRockWithTexture)
 {
-  const Rock rock;
-  const ProjectorCalibration proj = defaultProjector();
-  const CameraModel cam = CameraModel::studyDesign();
-  std::mt19937 rng(17);
-  PoseDeltaEstimator est;
-  est.setCamera(cam);
-  {
-    const auto pts = beamPoints(rock, proj, Eigen::Isometry3d::Identity(), 0.5e-3, &rng);
-    const PoseDeltaResult r0 = est.process(frameOf(pts, renderImage(rock, cam, Eigen::Isometry3d::Identity(), pts, 1)));
-    std::cout << "  lock: " << r0.status << "\n";
-  }
-  Stats s;
-  std::string example;
-  for (int k = 0; k < 15; ++k)
-  {
-    const Eigen::Isometry3d truth = randomDelta(rng, 0.010, 1.0 * kPi / 180);
-    const auto pts = beamPoints(rock, proj, truth, 0.5e-3, &rng);
-    const PoseDeltaResult r = est.process(frameOf(pts, renderImage(rock, cam, truth, pts, 200 + k)));
-    s.add(r.transform, truth, r.valid);
-    example = r.status;
-  }
-  s.print("rough rock, texture on");
-  std::cout << "  status: " << example << "\n";
+  const Stats s = trackWithTexture(Rock(), 17, 200, "rough rock, texture on");
   EXPECT_LT(s.rmsTranslationMm(), 1.0);
   EXPECT_LT(s.rmsRotationDeg(), 0.05);
   EXPECT_GE(s.validPercent(), 95.0);
@@ -292,30 +300,7 @@ TEST(PoseDelta, FlatTexturedBoardWithTexture)
 {
   Rock board;
   board.relief = 0.0;
-  const ProjectorCalibration proj = defaultProjector();
-  const CameraModel cam = CameraModel::studyDesign();
-  std::mt19937 rng(9);
-  PoseDeltaParams cfg;
-  PoseDeltaEstimator est(cfg);
-  est.setCamera(cam);
-  {
-    const auto pts = beamPoints(board, proj, Eigen::Isometry3d::Identity(), 0.5e-3, &rng);
-    const PoseDeltaResult r0 =
-        est.process(frameOf(pts, renderImage(board, cam, Eigen::Isometry3d::Identity(), pts, 1)));
-    std::cout << "  lock: " << r0.status << "\n";
-  }
-  Stats s;
-  std::string example;
-  for (int k = 0; k < 15; ++k)
-  {
-    const Eigen::Isometry3d truth = randomDelta(rng, 0.010, 1.0 * kPi / 180);
-    const auto pts = beamPoints(board, proj, truth, 0.5e-3, &rng);
-    const PoseDeltaResult r = est.process(frameOf(pts, renderImage(board, cam, truth, pts, 100 + k)));
-    s.add(r.transform, truth, r.valid);
-    example = r.status;
-  }
-  s.print("flat textured board, texture on");
-  std::cout << "  status: " << example << "\n";
+  const Stats s = trackWithTexture(board, 9, 100, "flat textured board, texture on");
   EXPECT_LT(s.rmsTranslationMm(), 1.0);
   EXPECT_LT(s.rmsRotationDeg(), 0.05);
   EXPECT_GE(s.validPercent(), 95.0);

@@ -1,0 +1,82 @@
+// The rock's own texture as constraints on the camera pose, ROS-free: the
+// texture half of PoseDeltaEstimator (docs/pose_delta.md).
+//
+// Contract: when the reference is locked, features are chosen in its image
+// away from the dots (texture_tracker.h) and lifted to 3D in the reference
+// camera frame (metres): onto the reference surface where a feature's ray
+// meets it, otherwise onto the least-squares plane of the reference points
+// with a loose depth prior that the registration refines. In each frame the
+// features are predicted from a pose (p_cur = T * p_ref), tracked, and
+// returned as TextureConstraints (undistorted normalised coordinates).
+// Not thread-safe (one estimator's state); throws nothing.
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+
+#include "structured_light_stabilizer/beam_surface.h"
+#include "structured_light_stabilizer/camera_model.h"
+#include "structured_light_stabilizer/pose_delta_params.h"
+#include "structured_light_stabilizer/registration.h"
+#include "structured_light_stabilizer/texture_tracker.h"
+
+namespace structured_light_stabilizer
+{
+
+// Pixels of the usable points of a beam map (NaN and points behind the
+// camera skipped): where the dots are in the image.
+std::vector<cv::Point2f> projectPoints(const CameraModel& camera, const std::vector<Eigen::Vector3d>& points);
+
+class TextureLandmarks
+{
+public:
+  // Chooses and lifts the features of the reference `image` (8-bit; its
+  // `channel` when it has three) whose beam map is `points` with `surface`
+  // built on it; `camera` must match the image. Nothing to track when the
+  // map has no dot in the image.
+  void lock(const PoseDeltaParams& config, const CameraModel& camera, const cv::Mat& image, int channel,
+            const std::vector<Eigen::Vector3d>& points, const BeamSurface& surface);
+  // No reference image any more.
+  void clear();
+  // Forgets the features (they were lifted with other intrinsics); the
+  // reference still had an image.
+  void dropFeatures();
+
+  bool hasReferenceImage() const { return has_image_; }
+  bool empty() const { return tracker_.empty(); }
+
+  // Starts a frame: its image and beam map (the dots' windows are masked).
+  // False when the image cannot be tracked (see TextureTracker::setFrame).
+  bool setFrame(const CameraModel& camera, const cv::Mat& image, int channel,
+                const std::vector<Eigen::Vector3d>& points);
+  // Features predicted at T and tracked over the pyramid (a wide capture
+  // range): about kCoarseFeatures of them spread over the list, or all.
+  std::vector<TextureConstraint> trackCoarse(const Eigen::Isometry3d& T);
+  std::vector<TextureConstraint> trackAll(const Eigen::Isometry3d& T);
+  // Every feature refined with gain and offset from where T predicts it
+  // (needs a prediction within about a pixel): the measurement.
+  std::vector<TextureConstraint> refineAll(const Eigen::Isometry3d& T) const;
+
+private:
+  // How many features trackCoarse() tracks: enough to fix the in-plane axes
+  // for a prediction, at a fraction of the cost of all.
+  static constexpr size_t kCoarseFeatures = 48;
+
+  std::vector<cv::Point2f> predict(const Eigen::Isometry3d& T) const;
+  std::vector<TextureConstraint> constraints(const std::vector<cv::Point2f>& tracked,
+                                             const std::vector<uint8_t>& ok) const;
+  std::vector<TextureConstraint> trackPyramidal(const Eigen::Isometry3d& T, const std::vector<uint8_t>& which);
+
+  TextureTracker tracker_;
+  std::vector<Eigen::Vector3d> points_;  // the features lifted to 3D, reference camera frame
+  std::vector<double> depth_sigma_;      // 1-sigma of each feature's depth (0 = fixed)
+  bool has_image_ = false;
+  // The frame being tracked.
+  CameraModel camera_;
+  std::vector<cv::Point2f> dots_;
+};
+
+}  // namespace structured_light_stabilizer
