@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
-#include <sstream>
 
 #include <opencv2/core/hal/intrin.hpp>
 #include <opencv2/imgproc.hpp>
@@ -63,42 +62,6 @@ std::string checkImage(const cv::Mat& image, PixelFormat format)
     return "image is not two-dimensional";
   return std::string();
 }
-
-void clampInt(int* v, int lo, int hi, const char* name, std::vector<std::string>* changes)
-{
-  const int c = std::min(std::max(*v, lo), hi);
-  if (c != *v)
-  {
-    std::ostringstream s;
-    s << name << " " << *v << " out of [" << lo << ", " << hi << "], clamped to " << c;
-    changes->push_back(s.str());
-    *v = c;
-  }
-}
-
-void clampDouble(double* v, double lo, double hi, const char* name, std::vector<std::string>* changes)
-{
-  const double c = std::isfinite(*v) ? std::min(std::max(*v, lo), hi) : lo;
-  if (c != *v)
-  {
-    std::ostringstream s;
-    s << name << " " << *v << " out of [" << lo << ", " << hi << "], clamped to " << c;
-    changes->push_back(s.str());
-    *v = c;
-  }
-}
-
-template <typename T>
-void orderPair(T* lo, T* hi, const char* lo_name, const char* hi_name, std::vector<std::string>* changes)
-{
-  if (*lo > *hi)
-  {
-    std::ostringstream s;
-    s << lo_name << " " << *lo << " > " << hi_name << " " << *hi << ", swapped";
-    changes->push_back(s.str());
-    std::swap(*lo, *hi);
-  }
-}
 }  // namespace
 
 bool pixelFormatFromEncoding(const std::string& encoding, PixelFormat* format)
@@ -121,77 +84,6 @@ bool pixelFormatFromEncoding(const std::string& encoding, PixelFormat* format)
 int channelCount(PixelFormat format)
 {
   return layoutOf(format).step;
-}
-
-// ---------------------------------------------------------------------------
-// Params
-
-std::vector<std::string> SpotDetectorParams::sanitize()
-{
-  std::vector<std::string> changes;
-  clampInt(&blur_kernel, 1, 31, "blur_kernel", &changes);
-  if (blur_kernel % 2 == 0)
-  {
-    changes.push_back("blur_kernel " + std::to_string(blur_kernel) + " is even, using " +
-                      std::to_string(blur_kernel + 1));
-    ++blur_kernel;
-  }
-  clampInt(&h_min, 0, 179, "h_min", &changes);
-  clampInt(&h_max, 0, 179, "h_max", &changes);
-  clampInt(&s_min, 0, 255, "s_min", &changes);
-  clampInt(&s_max, 0, 255, "s_max", &changes);
-  clampInt(&v_min, 0, 255, "v_min", &changes);
-  clampInt(&v_max, 0, 255, "v_max", &changes);
-  orderPair(&h_min, &h_max, "h_min", "h_max", &changes);
-  orderPair(&s_min, &s_max, "s_min", "s_max", &changes);
-  orderPair(&v_min, &v_max, "v_min", "v_max", &changes);
-  clampInt(&erosions, 0, 20, "erosions", &changes);
-  clampInt(&dilations, 0, 20, "dilations", &changes);
-  clampInt(&min_area, 0, 1000000, "min_area", &changes);
-  clampInt(&max_area, 0, 1000000, "max_area", &changes);
-  if (max_area > 0 && min_area > max_area)
-    orderPair(&min_area, &max_area, "min_area", "max_area", &changes);
-  clampInt(&projector_rows, 1, 1000, "projector_rows", &changes);
-  clampInt(&projector_cols, 1, 1000, "projector_cols", &changes);
-  clampInt(&detect_threshold, 1, 255, "detect_threshold", &changes);
-  clampDouble(&red_weight, 0.0, 1.0, "red_weight", &changes);
-  clampInt(&min_peak, 1, 255, "min_peak", &changes);
-  clampInt(&mono_threshold, 1, 255, "mono_threshold", &changes);
-  clampInt(&min_pixels, 1, 10000, "min_pixels", &changes);
-  clampInt(&coarse_threshold, 0, 255, "coarse_threshold", &changes);
-  clampInt(&window_radius_px, 0, 24, "window_radius_px", &changes);
-  clampDouble(&min_sigma_px, 0.0, 20.0, "min_sigma_px", &changes);
-  clampDouble(&max_sigma_px, 0.3, 20.0, "max_sigma_px", &changes);
-  orderPair(&min_sigma_px, &max_sigma_px, "min_sigma_px", "max_sigma_px", &changes);
-  clampDouble(&led_red_ratio, 0.0, 10.0, "led_red_ratio", &changes);
-  clampDouble(&led_blue_ratio, 0.0, 10.0, "led_blue_ratio", &changes);
-  clampDouble(&max_red_deficit, 0.0, 100.0, "max_red_deficit", &changes);
-  clampDouble(&max_red_excess, 0.0, 100.0, "max_red_excess", &changes);
-  clampDouble(&max_chroma_error, 0.0, 100.0, "max_chroma_error", &changes);
-  clampInt(&saturation_level, 1, 255, "saturation_level", &changes);
-  clampDouble(&min_sigma_fraction, 0.0, 1.0, "min_sigma_fraction", &changes);
-  clampDouble(&max_sigma_factor, 0.0, 1000.0, "max_sigma_factor", &changes);
-  if (max_sigma_factor > 0 && max_sigma_factor < 1.0)
-    clampDouble(&max_sigma_factor, 1.0, 1000.0, "max_sigma_factor", &changes);
-  clampDouble(&max_contrast_factor, 0.0, 1000.0, "max_contrast_factor", &changes);
-  clampDouble(&min_energy_fraction, 0.0, 1.0, "min_energy_fraction", &changes);
-  clampDouble(&size_band_low, 0.0, 1.0, "size_band_low", &changes);
-  clampDouble(&size_band_high, 0.0, 1000.0, "size_band_high", &changes);
-  if (size_band_high > 0 && size_band_high < 1.0)
-    clampDouble(&size_band_high, 1.0, 1000.0, "size_band_high", &changes);
-  clampDouble(&energy_band_low, 0.0, 1.0, "energy_band_low", &changes);
-  clampDouble(&energy_band_high, 0.0, 1000.0, "energy_band_high", &changes);
-  if (energy_band_high > 0 && energy_band_high < 1.0)
-    clampDouble(&energy_band_high, 1.0, 1000.0, "energy_band_high", &changes);
-  clampInt(&consistency_min_spots, 1, 100000, "consistency_min_spots", &changes);
-  return changes;
-}
-
-std::string SpotDetectorParams::validate() const
-{
-  SpotDetectorParams copy = *this;
-  const std::vector<std::string> changes = copy.sanitize();
-  return changes.empty() ? std::string() : changes.front();
 }
 
 // ---------------------------------------------------------------------------
@@ -233,7 +125,7 @@ SpotDetectionResult SpotDetector::detectBaseline(const cv::Mat& image, PixelForm
                                                  SpotDetectorTimings* timings)
 {
   SpotDetectionResult result;
-  const SpotDetectorParams& p = params_;
+  const BaselineParams& p = params_.baseline;
   Clock::time_point t = Clock::now();
   SpotDetectorTimings tm;
 
@@ -319,7 +211,7 @@ SpotDetectionResult SpotDetector::detectBaseline(const cv::Mat& image, PixelForm
   }
   tm.centroids_ms = msSince(t);
 
-  sortIntoRows(&result.spots, p.projector_cols, p.projector_rows, true);
+  sortIntoRows(&result.spots, params_.projector_cols, params_.projector_rows, true);
   tm.sort_ms = msSince(t);
 
   if (debug)
@@ -885,7 +777,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
                                              SpotDetectorTimings* timings)
 {
   SpotDetectionResult result;
-  const SpotDetectorParams& p = params_;
+  const FastParams& p = params_.fast;
   Clock::time_point t = Clock::now();
   SpotDetectorTimings tm;
   const Layout L = layoutOf(format);
@@ -1238,17 +1130,17 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
     r.clipped = core[L.g] >= p.saturation_level;
     if (!mono && !clipped)
     {
-      chroma(image, L, p.saturation_level, p.led_red_ratio, p.led_blue_ratio, &r);
+      chroma(image, L, p.saturation_level, p.colour_test.led_red_ratio, p.colour_test.led_blue_ratio, &r);
       // The red test sees the rock texture as much as the spot: off by default.
       // Red above the LED's: olive and yellow minerals (R = G) carry their own
       // red; the slack covers what rock texture alone can add.
-      bool red_bad = p.max_red_excess > 0 && r.red_ratio > p.led_red_ratio + p.max_red_excess + r.red_slack;
-      red_bad = red_bad || (p.max_red_deficit > 0 && r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack);
+      bool red_bad = p.colour_test.max_red_excess > 0 && r.red_ratio > p.colour_test.led_red_ratio + p.colour_test.max_red_excess + r.red_slack;
+      red_bad = red_bad || (p.colour_test.max_red_deficit > 0 && r.red_ratio < p.colour_test.led_red_ratio - p.colour_test.max_red_deficit - r.red_slack);
       // A spot on a pedestal is suspect: the pedestal is often an olive or
       // yellow mineral, whose own red shows up as extra red excess.
-      red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - p.led_red_ratio) > p.max_chroma_error);
+      red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - p.colour_test.led_red_ratio) > p.colour_test.max_chroma_error);
       if (!std::isfinite(r.blue_ratio) || red_bad ||
-          std::abs(r.blue_ratio - p.led_blue_ratio) > p.max_chroma_error)
+          std::abs(r.blue_ratio - p.colour_test.led_blue_ratio) > p.colour_test.max_chroma_error)
       {
         reject(r.x, r.y, "colour: red/green " + std::to_string(r.red_ratio) + ", blue/green " +
                              std::to_string(r.blue_ratio));
@@ -1298,7 +1190,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
   for (size_t i = 0; i < kept.size(); ++i)
     if (!drop[i])
       alive.push_back(i);
-  if (static_cast<int>(alive.size()) >= std::max(1, p.consistency_min_spots))
+  if (static_cast<int>(alive.size()) >= std::max(1, p.frame_checks.consistency_min_spots))
   {
     // The +4 DN keeps both finite at night (no background) without letting
     // noise in the background decide.
@@ -1338,20 +1230,20 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
       // halfway from the floor to the median) is such a dot; a speck is
       // small both ways (measured: foreshortened dots 0.96-0.97, the
       // closest speck 0.92 of the median, with a mean sigma of 0.88-0.90).
-      const bool foreshortened = r.sigma_major / sig_med >= 0.5 * (1.0 + p.min_sigma_fraction);
-      const bool too_small = p.min_sigma_fraction > 0 && sr < p.min_sigma_fraction && !foreshortened;
+      const bool foreshortened = r.sigma_major / sig_med >= 0.5 * (1.0 + p.frame_checks.min_sigma_fraction);
+      const bool too_small = p.frame_checks.min_sigma_fraction > 0 && sr < p.frame_checks.min_sigma_fraction && !foreshortened;
       const bool off_size =
-          (p.size_band_low > 0 && sr < p.size_band_low) || (p.size_band_high > 0 && sr > p.size_band_high);
+          (p.frame_checks.size_band_low > 0 && sr < p.frame_checks.size_band_low) || (p.frame_checks.size_band_high > 0 && sr > p.frame_checks.size_band_high);
       const bool off_energy =
-          (p.energy_band_low > 0 && er < p.energy_band_low) || (p.energy_band_high > 0 && er > p.energy_band_high);
+          (p.frame_checks.energy_band_low > 0 && er < p.frame_checks.energy_band_low) || (p.frame_checks.energy_band_high > 0 && er > p.frame_checks.energy_band_high);
       std::string why;
       if (shape_known && (too_small ||
-                          (p.max_sigma_factor > 0 && sr > p.max_sigma_factor)))
+                          (p.frame_checks.max_sigma_factor > 0 && sr > p.frame_checks.max_sigma_factor)))
         why = "sigma " + std::to_string(r.sigma) + " px far from the frame's median " + std::to_string(sig_med);
-      else if (p.max_contrast_factor > 0 && contrast(r) > p.max_contrast_factor * con_med)
-        why = "contrast " + std::to_string(contrast(r)) + " above " + std::to_string(p.max_contrast_factor) +
+      else if (p.frame_checks.max_contrast_factor > 0 && contrast(r) > p.frame_checks.max_contrast_factor * con_med)
+        why = "contrast " + std::to_string(contrast(r)) + " above " + std::to_string(p.frame_checks.max_contrast_factor) +
               " x the frame's median " + std::to_string(con_med);
-      else if (shape_known && p.min_energy_fraction > 0 && er < p.min_energy_fraction)
+      else if (shape_known && p.frame_checks.min_energy_fraction > 0 && er < p.frame_checks.min_energy_fraction)
         why = "energy " + std::to_string(er) + " x the frame's median: not lit by the projector";
       else if (shape_known && off_size && off_energy)
         why = "both size (" + std::to_string(sr) + ") and energy (" + std::to_string(er) + ") off the frame's medians";
@@ -1374,7 +1266,7 @@ SpotDetectionResult SpotDetector::detectFast(const cv::Mat& image, PixelFormat f
   tm.refine_ms = msSince(t);
 
   // Row-major order for readability; beams are the Triangulator's business.
-  sortIntoRows(&spots, p.projector_cols, p.projector_rows, false);
+  sortIntoRows(&spots, params_.projector_cols, params_.projector_rows, false);
   if (debug)
   {
     // Per-spot debug data in the order of the sorted spots.
