@@ -7,6 +7,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "spot_detector_method.h"
+
 namespace structured_light_stabilizer
 {
 
@@ -149,6 +151,11 @@ Changes FastParams::sanitize()
 Changes SpotDetectorParams::sanitize()
 {
   Changes changes;
+  if (!isRegisteredMethod(method))
+  {
+    changes.push_back("method " + std::to_string(static_cast<int>(method)) + " is not registered, using fast");
+    method = SpotMethod::kFast;
+  }
   append(baseline.sanitize(), &changes);
   clampInt(&projector_rows, 1, 1000, "projector_rows", &changes);
   clampInt(&projector_cols, 1, 1000, "projector_cols", &changes);

@@ -1,27 +1,31 @@
-// Detection of the projected green dots and their sub-pixel centroids (SPEC §3).
+// Detection of the projected green dots and their sub-pixel centroids
+// (docs/spot_detector.md).
 //
 // Contract: detect() takes one 8-bit image (bgr8, rgb8, bgra8, rgba8 or mono8,
 // any row step, ROIs welcome) and returns the dots found in it as Spots in
 // pixel coordinates (OpenCV convention: pixel centres at integer coordinates,
 // x = column, y = row). Bad input (empty, wrong depth/channel count for the
-// stated format) is refused with a reason, never thrown. Two methods:
-//  - kBaseline: the study's chain (§2.4), kept faithful as the yardstick:
-//    box blur -> HSV -> inRange -> N erosions then N dilations (3x3 rect) ->
-//    4-connected regions -> minimum pixel count -> centroid weighted by S
-//    (formulas 2.31-2.32) -> row sort (the top `cols` centroids form a row,
-//    sorted by x; repeat), which numbers the beams.
-//  - kFast (default): one SIMD pass thresholds the greenness g - max(k r, b) in
-//    the raw frame, runs are grouped into blobs (one candidate per dot when
-//    bright greenish rock bridges several), and each is refined in a
-//    fixed window on the background-subtracted green channel with an
-//    iteratively Gaussian-weighted centroid (the star-tracker way), so mask
-//    edge pixels flickering in and out no longer move the centroid. Beams are
-//    left unassigned (-1): the Triangulator assigns them by the epipolar
-//    constraint.
+// stated format) is refused with a reason, never thrown. Two methods, chosen by
+// SpotDetectorParams::method (the registry is in spot_detector.cpp):
+//  - kBaseline (spot_detector_baseline.cpp): the study's chain
+//    (docs/study.md §2.4), kept faithful as the yardstick: box blur -> HSV ->
+//    inRange -> N erosions then N dilations (3x3 rect) -> 4-connected regions
+//    -> minimum pixel count -> centroid weighted by S (formulas 2.31-2.32) ->
+//    row sort (the top `cols` centroids form a row, sorted by x; repeat),
+//    which numbers the beams.
+//  - kFast (default; spot_detector_fast.cpp): one SIMD pass thresholds the
+//    greenness g - max(k r, b) in the raw frame, runs are grouped into blobs
+//    (one candidate per dot when bright greenish rock bridges several), and
+//    each is refined in a fixed window on the background-subtracted green
+//    channel with an iteratively Gaussian-weighted centroid (the star-tracker
+//    way), so mask edge pixels flickering in and out no longer move the
+//    centroid. Beams are left unassigned (-1): the Triangulator assigns them
+//    by the epipolar constraint.
 // Not thread-safe per instance (scratch buffers); use one detector per thread.
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -51,6 +55,12 @@ enum class SpotMethod
   kBaseline = 0,
   kFast = 1,
 };
+
+// The method's name as the nodelet's ~method parameter spells it ("baseline",
+// "fast"); "unknown" for a value that is not registered.
+const char* spotMethodName(SpotMethod method);
+// Parses such a name; false (and *method untouched) when no method has it.
+bool spotMethodFromName(const std::string& name, SpotMethod* method);
 
 // Which pixel value weighs the baseline's centroid (formulas 2.31-2.32).
 enum class BaselineWeight
@@ -186,12 +196,14 @@ struct SpotDetectorParams
   FastParams fast;
 
   std::string validate() const;
+  // Also replaces a method that is not registered by kFast.
   std::vector<std::string> sanitize();
 };
 
 // Per-stage wall times of the last detect() call (ms). Baseline stages:
 // blur, hsv, in_range, opening, labelling, centroids, sort; fast stages:
-// threshold (the SIMD pass), labelling (runs -> blobs), refine.
+// threshold (the SIMD pass), labelling (runs -> blobs -> candidates), refine
+// (refinement, tests, de-duplication, frame checks).
 struct SpotDetectorTimings
 {
   double blur_ms = 0, hsv_ms = 0, in_range_ms = 0, opening_ms = 0, labelling_ms = 0, centroids_ms = 0, sort_ms = 0;
@@ -224,10 +236,15 @@ struct SpotDetectionResult
   Spots spots;
 };
 
+class SpotDetectionMethod;  // one detection method (spot_detector_method.h)
+
 class SpotDetector
 {
 public:
   explicit SpotDetector(const SpotDetectorParams& params = SpotDetectorParams());
+  ~SpotDetector();
+  SpotDetector(SpotDetector&&) noexcept;
+  SpotDetector& operator=(SpotDetector&&) noexcept;
 
   // Params are sanitized on the way in; the returned lines say what changed.
   std::vector<std::string> setParams(const SpotDetectorParams& params);
@@ -237,28 +254,10 @@ public:
                              SpotDetectorTimings* timings = nullptr);
 
 private:
-  SpotDetectionResult detectBaseline(const cv::Mat& image, PixelFormat format, SpotDetectorDebug* debug,
-                                     SpotDetectorTimings* timings);
-  SpotDetectionResult detectFast(const cv::Mat& image, PixelFormat format, SpotDetectorDebug* debug,
-                                 SpotDetectorTimings* timings);
-
-  // A horizontal run of candidate pixels [x0, x1] in row y (fast method).
-  struct Run
-  {
-    int y, x0, x1;
-  };
-
   SpotDetectorParams params_;
-  // Scratch reused across frames (no per-frame allocation in the hot path).
-  cv::Mat blurred_, hsv_, mask_, labels_, stats_, centroids_;
-  cv::Mat coarse_, coarse_mask_;
-  std::vector<uint16_t> column_sums_;
-  std::vector<Run> runs_;
-  std::vector<int> parent_;
-  // Blob splitting: blob of each run, runs grouped by blob, and the discs
-  // already explained in each blob.
-  std::vector<int> run_blob_, run_start_, run_list_;
-  std::vector<std::vector<cv::Vec3d>> explained_;
+  // The object of params_.method, with its scratch buffers (reused across
+  // frames: no per-frame allocation in the hot path).
+  std::unique_ptr<SpotDetectionMethod> method_;
 };
 
 // The study's row sort (docs/study.md §2.4.3): repeatedly take the `cols`

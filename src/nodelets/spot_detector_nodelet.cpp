@@ -107,15 +107,11 @@ private:
   {
     // Runs with config_mutex_ held by the server: validate and copy only.
     SpotDetectorParams p;
-    if (config.method == "baseline")
-      p.method = SpotMethod::kBaseline;
-    else if (config.method == "fast")
-      p.method = SpotMethod::kFast;
-    else
+    if (!spotMethodFromName(config.method, &p.method))
     {
       // The last good value stays in force (the default before any).
       p.method = params_.method;
-      const char* kept = p.method == SpotMethod::kBaseline ? "baseline" : "fast";
+      const char* kept = spotMethodName(p.method);
       NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(), kept);
       config.method = kept;
     }
@@ -304,7 +300,7 @@ private:
     std::string method;
     {
       boost::recursive_mutex::scoped_lock lock(config_mutex_);
-      method = params_.method == SpotMethod::kBaseline ? "baseline" : "fast";
+      method = spotMethodName(params_.method);
     }
     std::lock_guard<std::mutex> lock(stats_mutex_);
     const int expected = projector_rows_ * projector_cols_;
