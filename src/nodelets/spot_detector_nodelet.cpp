@@ -107,74 +107,73 @@ private:
   {
     // Runs with config_mutex_ held by the server: validate and copy only.
     SpotDetectorParams p;
-    if (config.method == "baseline")
-      p.method = SpotMethod::kBaseline;
-    else if (config.method == "fast")
-      p.method = SpotMethod::kFast;
-    else
+    if (!spotMethodFromName(config.method, &p.method))
     {
       // The last good value stays in force (the default before any).
       p.method = params_.method;
-      const char* kept = p.method == SpotMethod::kBaseline ? "baseline" : "fast";
+      const char* kept = spotMethodName(p.method);
       NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(), kept);
       config.method = kept;
     }
-    p.blur_kernel = config.blur_kernel;
-    p.h_min = config.h_min;
-    p.h_max = config.h_max;
-    p.s_min = config.s_min;
-    p.s_max = config.s_max;
-    p.v_min = config.v_min;
-    p.v_max = config.v_max;
-    p.erosions = config.erosions;
-    p.dilations = config.dilations;
-    p.min_area = config.min_area;
-    p.max_area = config.max_area;
-    p.baseline_weight = config.baseline_weight == 1 ? BaselineWeight::kValue : BaselineWeight::kSaturation;
+    BaselineParams& b = p.baseline;
+    b.blur_kernel = config.blur_kernel;
+    b.h_min = config.h_min;
+    b.h_max = config.h_max;
+    b.s_min = config.s_min;
+    b.s_max = config.s_max;
+    b.v_min = config.v_min;
+    b.v_max = config.v_max;
+    b.erosions = config.erosions;
+    b.dilations = config.dilations;
+    b.min_area = config.min_area;
+    b.max_area = config.max_area;
+    b.baseline_weight = config.baseline_weight == 1 ? BaselineWeight::kValue : BaselineWeight::kSaturation;
     p.projector_rows = projector_rows_;
     p.projector_cols = projector_cols_;
-    p.red_weight = config.red_weight;
-    p.detect_threshold = config.detect_threshold;
-    p.min_peak = config.min_peak;
-    p.mono_threshold = config.mono_threshold;
-    p.min_pixels = config.min_pixels;
-    p.coarse_threshold = config.coarse_threshold;
-    p.window_radius_px = config.window_radius_px;
-    p.subtract_rock_texture = config.subtract_rock_texture;
-    p.min_sigma_px = config.min_sigma_px;
-    p.max_sigma_px = config.max_sigma_px;
-    p.led_red_ratio = config.led_red_ratio;
-    p.led_blue_ratio = config.led_blue_ratio;
-    p.max_red_excess = config.max_red_excess;
-    p.max_red_deficit = config.max_red_deficit;
-    p.max_chroma_error = config.max_chroma_error;
-    p.saturation_level = config.saturation_level;
-    p.min_sigma_fraction = config.min_sigma_fraction;
-    p.max_sigma_factor = config.max_sigma_factor;
-    p.max_contrast_factor = config.max_contrast_factor;
-    p.min_energy_fraction = config.min_energy_fraction;
-    p.size_band_low = config.size_band_low;
-    p.size_band_high = config.size_band_high;
-    p.energy_band_low = config.energy_band_low;
-    p.energy_band_high = config.energy_band_high;
-    p.consistency_min_spots = config.consistency_min_spots;
+    FastParams& f = p.fast;
+    f.red_weight = config.red_weight;
+    f.detect_threshold = config.detect_threshold;
+    f.min_peak = config.min_peak;
+    f.mono_threshold = config.mono_threshold;
+    f.min_pixels = config.min_pixels;
+    f.coarse_threshold = config.coarse_threshold;
+    f.window_radius_px = config.window_radius_px;
+    f.subtract_rock_texture = config.subtract_rock_texture;
+    f.min_sigma_px = config.min_sigma_px;
+    f.max_sigma_px = config.max_sigma_px;
+    f.colour_test.led_red_ratio = config.led_red_ratio;
+    f.colour_test.led_blue_ratio = config.led_blue_ratio;
+    f.colour_test.max_red_excess = config.max_red_excess;
+    f.colour_test.max_red_deficit = config.max_red_deficit;
+    f.colour_test.max_chroma_error = config.max_chroma_error;
+    f.saturation_level = config.saturation_level;
+    FrameCheckParams& fc = f.frame_checks;
+    fc.min_sigma_fraction = config.min_sigma_fraction;
+    fc.max_sigma_factor = config.max_sigma_factor;
+    fc.max_contrast_factor = config.max_contrast_factor;
+    fc.min_energy_fraction = config.min_energy_fraction;
+    fc.size_band_low = config.size_band_low;
+    fc.size_band_high = config.size_band_high;
+    fc.energy_band_low = config.energy_band_low;
+    fc.energy_band_high = config.energy_band_high;
+    fc.consistency_min_spots = config.consistency_min_spots;
     for (const std::string& change : p.sanitize())
       NODELET_WARN("SpotDetector: %s", change.c_str());
     // Show the values actually used in rqt_reconfigure.
-    config.blur_kernel = p.blur_kernel;
-    config.h_min = p.h_min;
-    config.h_max = p.h_max;
-    config.s_min = p.s_min;
-    config.s_max = p.s_max;
-    config.v_min = p.v_min;
-    config.v_max = p.v_max;
-    config.min_area = p.min_area;
-    config.max_area = p.max_area;
-    config.min_sigma_px = p.min_sigma_px;
-    config.max_sigma_px = p.max_sigma_px;
-    config.max_sigma_factor = p.max_sigma_factor;
-    config.size_band_high = p.size_band_high;
-    config.energy_band_high = p.energy_band_high;
+    config.blur_kernel = b.blur_kernel;
+    config.h_min = b.h_min;
+    config.h_max = b.h_max;
+    config.s_min = b.s_min;
+    config.s_max = b.s_max;
+    config.v_min = b.v_min;
+    config.v_max = b.v_max;
+    config.min_area = b.min_area;
+    config.max_area = b.max_area;
+    config.min_sigma_px = f.min_sigma_px;
+    config.max_sigma_px = f.max_sigma_px;
+    config.max_sigma_factor = fc.max_sigma_factor;
+    config.size_band_high = fc.size_band_high;
+    config.energy_band_high = fc.energy_band_high;
     params_ = p;
     enabled_ = config.enabled;
     params_changed_ = true;
@@ -301,7 +300,7 @@ private:
     std::string method;
     {
       boost::recursive_mutex::scoped_lock lock(config_mutex_);
-      method = params_.method == SpotMethod::kBaseline ? "baseline" : "fast";
+      method = spotMethodName(params_.method);
     }
     std::lock_guard<std::mutex> lock(stats_mutex_);
     const int expected = projector_rows_ * projector_cols_;

@@ -50,40 +50,50 @@ SpotDetectorParams variant(uint8_t flags, const uint8_t* p)
     case 0:
       break;  // defaults
     case 1:   // extremes of the baseline knobs, possibly inconsistent
-      params.blur_kernel = p[0] % 32;
-      params.h_min = p[1] % 180;
-      params.h_max = p[2] % 180;
-      params.erosions = p[3] % 4;
-      params.dilations = p[0] % 4;
-      params.min_area = p[1] % 8;
-      params.max_area = p[2] % 3 == 0 ? 0 : p[3];
-      params.baseline_weight = (p[3] & 1) ? BaselineWeight::kValue : BaselineWeight::kSaturation;
+    {
+      BaselineParams& b = params.baseline;
+      b.blur_kernel = p[0] % 32;
+      b.h_min = p[1] % 180;
+      b.h_max = p[2] % 180;
+      b.erosions = p[3] % 4;
+      b.dilations = p[0] % 4;
+      b.min_area = p[1] % 8;
+      b.max_area = p[2] % 3 == 0 ? 0 : p[3];
+      b.baseline_weight = (p[3] & 1) ? BaselineWeight::kValue : BaselineWeight::kSaturation;
       break;
+    }
     case 2:  // extremes of the fast detector's knobs
-      params.detect_threshold = 1 + p[0] % 255;
-      params.min_peak = 1 + p[1] % 255;
-      params.coarse_threshold = p[2] % 8;
-      params.window_radius_px = p[3] % 25;
-      params.min_pixels = 1 + p[0] % 3;
-      params.min_sigma_px = (p[1] % 40) * 0.1;
-      params.max_sigma_px = 0.3 + (p[2] % 40) * 0.5;
-      params.subtract_rock_texture = p[3] & 1;
-      params.consistency_min_spots = 1 + p[2] % 4;
+    {
+      FastParams& f = params.fast;
+      f.detect_threshold = 1 + p[0] % 255;
+      f.min_peak = 1 + p[1] % 255;
+      f.coarse_threshold = p[2] % 8;
+      f.window_radius_px = p[3] % 25;
+      f.min_pixels = 1 + p[0] % 3;
+      f.min_sigma_px = (p[1] % 40) * 0.1;
+      f.max_sigma_px = 0.3 + (p[2] % 40) * 0.5;
+      f.subtract_rock_texture = p[3] & 1;
+      f.frame_checks.consistency_min_spots = 1 + p[2] % 4;
       break;
+    }
     default:  // frame-level tests off / everything lenient
-      params.min_sigma_fraction = 0.0;
-      params.max_sigma_factor = 0.0;
-      params.max_contrast_factor = 0.0;
-      params.min_energy_fraction = 0.0;
-      params.size_band_low = params.size_band_high = 0.0;
-      params.energy_band_low = params.energy_band_high = 0.0;
-      params.max_chroma_error = (p[0] % 100) * 0.1;
-      params.red_weight = (p[1] % 11) * 0.1;
-      params.saturation_level = 1 + p[2] % 255;
-      params.min_peak = 1;
-      params.detect_threshold = 1;
-      params.min_sigma_px = 0.0;
+    {
+      FastParams& f = params.fast;
+      FrameCheckParams& fc = f.frame_checks;
+      fc.min_sigma_fraction = 0.0;
+      fc.max_sigma_factor = 0.0;
+      fc.max_contrast_factor = 0.0;
+      fc.min_energy_fraction = 0.0;
+      fc.size_band_low = fc.size_band_high = 0.0;
+      fc.energy_band_low = fc.energy_band_high = 0.0;
+      f.colour_test.max_chroma_error = (p[0] % 100) * 0.1;
+      f.red_weight = (p[1] % 11) * 0.1;
+      f.saturation_level = 1 + p[2] % 255;
+      f.min_peak = 1;
+      f.detect_threshold = 1;
+      f.min_sigma_px = 0.0;
       break;
+    }
   }
   params.projector_rows = 1 + p[3] % 10;
   params.projector_cols = 1 + p[0] % 10;
@@ -117,8 +127,8 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
 
   const bool want_debug = flags & 2;
   const SpotDetectorParams picked = variant(flags, params);
-  for (const SpotMethod method : {picked.method, picked.method == SpotMethod::kFast ? SpotMethod::kBaseline
-                                                                                   : SpotMethod::kFast})
+  for (const SpotMethod method :
+       {picked.method, picked.method == SpotMethod::kFast ? SpotMethod::kBaseline : SpotMethod::kFast})
   {
     SpotDetectorParams p = picked;
     p.method = method;

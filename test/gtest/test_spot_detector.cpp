@@ -203,20 +203,20 @@ TEST(SpotDetector, ParamsAreSanitized)
 {
   SpotDetectorParams p;
   EXPECT_TRUE(p.validate().empty()) << p.validate();
-  p.h_min = 100;
-  p.h_max = 20;
-  p.blur_kernel = 4;
-  p.s_min = 300;
-  p.min_sigma_px = 5;
-  p.max_sigma_px = 1;
+  p.baseline.h_min = 100;
+  p.baseline.h_max = 20;
+  p.baseline.blur_kernel = 4;
+  p.baseline.s_min = 300;
+  p.fast.min_sigma_px = 5;
+  p.fast.max_sigma_px = 1;
   EXPECT_FALSE(p.validate().empty());
   const std::vector<std::string> changes = p.sanitize();
   EXPECT_GE(changes.size(), 4u);
-  EXPECT_EQ(p.h_min, 20);
-  EXPECT_EQ(p.h_max, 100);
-  EXPECT_EQ(p.blur_kernel, 5);
-  EXPECT_EQ(p.s_min, 255);
-  EXPECT_LT(p.min_sigma_px, p.max_sigma_px);
+  EXPECT_EQ(p.baseline.h_min, 20);
+  EXPECT_EQ(p.baseline.h_max, 100);
+  EXPECT_EQ(p.baseline.blur_kernel, 5);
+  EXPECT_EQ(p.baseline.s_min, 255);
+  EXPECT_LT(p.fast.min_sigma_px, p.fast.max_sigma_px);
   EXPECT_TRUE(p.validate().empty());
   for (const std::string& c : changes)
     std::cout << "[ INFO ] " << c << "\n";
