@@ -73,7 +73,7 @@ std::string viewName(size_t v, const BoardView& view)
 
 // Board points of every beam, in view order.
 bool collectBoardPoints(const CameraModel& camera, const std::vector<BoardView>& views,
-                        const BoardCalibrationOptions& options,
+                        const BoardCalibrationParams& options,
                         std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>>* per_beam, std::string* error)
 {
   const int n_beams = options.rows * options.cols;
@@ -178,7 +178,7 @@ double reprojectionResidual(const CameraModel& camera, const std::vector<BoardVi
 
 void finishReport(const CameraModel& camera, const std::vector<BoardView>& views,
                   const std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>>& per_beam,
-                  const BoardCalibrationOptions& options, bool use_centre, BoardCalibrationResult* res)
+                  const BoardCalibrationParams& options, bool use_centre, BoardCalibrationResult* res)
 {
   const auto& beams = res->calibration.beams;
   const bool have_centre = use_centre && beams.size() >= 3 && commonCentre(beams, &res->common_centre);
@@ -228,7 +228,7 @@ std::string BoardCalibrationResult::report() const
 }
 
 BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std::vector<BoardView>& views,
-                                           const BoardCalibrationOptions& options)
+                                           const BoardCalibrationParams& options)
 {
   BoardCalibrationResult res;
   const std::string why = camera.validate();
@@ -303,7 +303,7 @@ BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std:
 
 BoardCalibrationResult calibrateFromOneBoard(const CameraModel& camera, const BoardView& view,
                                              const Eigen::Vector3d& projector_origin,
-                                             const BoardCalibrationOptions& options)
+                                             const BoardCalibrationParams& options)
 {
   BoardCalibrationResult res;
   const std::string why = camera.validate();

@@ -112,7 +112,7 @@ struct Candidate
 
 }  // namespace
 
-std::string TriangulatorOptions::validate() const
+std::string TriangulatorParams::validate() const
 {
   std::ostringstream why;
   if (!(min_depth > 0.0) || !(max_depth > min_depth) || !std::isfinite(max_depth))
@@ -169,8 +169,8 @@ std::vector<int> rowSortOrder(const Spots& spots, int cols)
 }
 
 Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration& projector,
-                           const TriangulatorOptions& config)
-  : camera_(camera), projector_(projector), config_(config)
+                           const TriangulatorParams& params)
+  : camera_(camera), projector_(projector), params_(params)
 {
   std::string why = camera_.validate();
   if (!why.empty())
@@ -178,7 +178,7 @@ Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration
   why = projector_.validate();
   if (!why.empty())
     throw std::invalid_argument("projector calibration: " + why);
-  why = config_.validate();
+  why = params_.validate();
   if (!why.empty())
     throw std::invalid_argument("triangulator config: " + why);
   segments_.resize(projector_.beams.size());
@@ -188,8 +188,8 @@ Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration
     // Parameterised by camera depth z: s = (z - o_z) / u_z (u_z > 0 is
     // guaranteed by validate()).
     const auto at_depth = [&](double z) { return b.pointAt((z - b.origin.z()) / b.direction.z()); };
-    segments_[i].near_px = projectUndistorted(at_depth(config_.min_depth));
-    segments_[i].far_px = projectUndistorted(at_depth(config_.max_depth));
+    segments_[i].near_px = projectUndistorted(at_depth(params_.min_depth));
+    segments_[i].far_px = projectUndistorted(at_depth(params_.max_depth));
   }
   // Smoothness scale: half the image distance between neighbouring beams
   // (median over the grid, at mid-range depth), so that reading a dot as its
@@ -211,7 +211,7 @@ Triangulator::Triangulator(const CameraModel& camera, const ProjectorCalibration
     std::nth_element(pitch.begin(), pitch.begin() + pitch.size() / 2, pitch.end());
     beam_pitch_px_ = pitch[pitch.size() / 2];
   }
-  smoothness_scale_px_ = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 2.0 * config_.prediction_tolerance_px;
+  smoothness_scale_px_ = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 2.0 * params_.prediction_tolerance_px;
 }
 
 Eigen::Vector2d Triangulator::projectUndistorted(const Eigen::Vector3d& p) const
@@ -314,7 +314,7 @@ void Triangulator::rejectInconsistent(const std::vector<Eigen::Vector2d>& spots_
   // a small object in front of the rock. A spurious spot that happens to lie
   // on the segment of a beam whose dot is missing lands at a random depth
   // and fails both. Decisions use the state before this sweep.
-  const double tol = config_.prediction_tolerance_px;
+  const double tol = params_.prediction_tolerance_px;
   const int rows = projector_.rows, cols = projector_.cols;
   std::vector<int> reject;
   // Neighbours at whose depth beam i would be within tol of spot j.
@@ -421,10 +421,10 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
                                std::vector<int>* beam_of_spot, std::vector<Eigen::Vector3d>* accepted_point,
                                std::vector<char>* proven) const
 {
-  if (config_.prediction_tolerance_px <= 0.0)
+  if (params_.prediction_tolerance_px <= 0.0)
     return 0;
   const int rows = projector_.rows, cols = projector_.cols;
-  const double gate2 = config_.max_epipolar_distance_px * config_.max_epipolar_distance_px;
+  const double gate2 = params_.max_epipolar_distance_px * params_.max_epipolar_distance_px;
   const double inf = std::numeric_limits<double>::infinity();
   // Readings up to this much above a line's best are kept as hypotheses: a
   // reading shifted by one column costs the best + 0 or + 2 (a missing end
@@ -963,7 +963,7 @@ int Triangulator::resolveLines(const std::vector<std::pair<std::vector<int>, std
       for (size_t h = 0; h < nd.reading.size(); ++h)
         if (nd.reading[h][k] != best[k])
           alt = std::min(alt, nd.marginal[h]);
-      if (!(alt - nd.marginal[nd.map] >= config_.ambiguity_margin) || !std::isfinite(alt))
+      if (!(alt - nd.marginal[nd.map] >= params_.ambiguity_margin) || !std::isfinite(alt))
         continue;
       const int i = nd.beams[k], j = nd.spots[best[k]];
       (*spot_of_beam)[i] = j;
@@ -982,7 +982,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
 {
   const int n_beams = projector_.beamCount();
   const int n_spots = static_cast<int>(spots_px.size());
-  const double gate2 = config_.max_epipolar_distance_px * config_.max_epipolar_distance_px;
+  const double gate2 = params_.max_epipolar_distance_px * params_.max_epipolar_distance_px;
 
   // Gated candidates. A brute-force scan is fine for a few hundred beams and
   // spots; a spatial index would pay off only for much larger patterns.
@@ -1033,7 +1033,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   int tracked = -1;
   if (previous_px && static_cast<int>(previous_px->size()) == n_beams)
   {
-    const double search = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 4.0 * config_.tracking_radius_px;
+    const double search = beam_pitch_px_ > 0.0 ? 0.5 * beam_pitch_px_ : 4.0 * params_.tracking_radius_px;
     std::vector<double> dx, dy;
     int with_prior = 0;
     for (int i = 0; i < n_beams; ++i)
@@ -1066,7 +1066,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
         return v[v.size() / 2];
       };
       const Eigen::Vector2d shift(median(dx), median(dy));
-      const double radius = config_.tracking_radius_px;
+      const double radius = params_.tracking_radius_px;
       // Then an affine map of the image (the rig's roll and change of scale
       // move dots differently across the image) fitted to the nearest
       // candidates within twice the radius of the shifted positions.
@@ -1159,7 +1159,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   {
     const auto far_from_track = [&](const Candidate& cand) {
       return track_px[cand.beam].allFinite() &&
-             (spots_px[cand.spot] - track_px[cand.beam]).norm() > config_.tracking_radius_px;
+             (spots_px[cand.spot] - track_px[cand.beam]).norm() > params_.tracking_radius_px;
     };
     for (auto& list : cand_of_beam)
       list.erase(std::remove_if(list.begin(), list.end(), [&](int k) { return far_from_track(candidates[k]); }),
@@ -1189,7 +1189,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
   bool one_sided = false;
   for (int pass = 0; pass < max_passes; ++pass)
   {
-    const bool use_prior = pass > 0 && config_.prediction_tolerance_px > 0.0;
+    const bool use_prior = pass > 0 && params_.prediction_tolerance_px > 0.0;
     // Prior pixel of every unaccepted beam from its accepted neighbours.
     std::vector<Eigen::Vector2d> prior(n_beams, Eigen::Vector2d::Constant(kNaN));
     if (use_prior)
@@ -1294,7 +1294,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
           if (use_prior && prior[i].allFinite())
           {
             // Distance along the segment from the predicted position.
-            const double e = (spots_px[candidates[k].spot] - prior[i]).norm() / config_.prediction_tolerance_px;
+            const double e = (spots_px[candidates[k].spot] - prior[i]).norm() / params_.prediction_tolerance_px;
             c += e * e;
           }
           cost[a * n + b] = std::min(c, kForbidden);
@@ -1322,7 +1322,7 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
         const double alt_best = solveAssignment(alt, n, &alt_cols);
         // After pass 0 the prior is the evidence: a beam without one waits
         // (its rivals' priors alone could make it look unique).
-        if (alt_best - best >= config_.ambiguity_margin && (!use_prior || prior[beams[a]].allFinite()))
+        if (alt_best - best >= params_.ambiguity_margin && (!use_prior || prior[beams[a]].allFinite()))
         {
           const int i = beams[a], j = spots[b];
           Eigen::Vector3d p;
@@ -1350,13 +1350,13 @@ std::vector<int> Triangulator::assignEpipolar(const std::vector<Eigen::Vector2d>
           resolveLines(line_components, spots_px, &spot_of_beam, &beam_of_spot, &accepted_point, &proven);
     }
     ambiguous = pass_ambiguous;
-    if (config_.prediction_tolerance_px > 0.0)
+    if (params_.prediction_tolerance_px > 0.0)
       rejectInconsistent(spots_px, contested, proven, &spot_of_beam, &beam_of_spot, &accepted_point);
     // Progress is judged on the state after the consistency check: a pair
     // accepted and dropped again in every pass is no progress (it made the
     // loop run to max_passes: 2 ms per frame on the axis-aligned grid).
     const bool progressed = spot_of_beam != state_before;
-    if (!progressed && (pass > 0 || config_.prediction_tolerance_px <= 0.0))
+    if (!progressed && (pass > 0 || params_.prediction_tolerance_px <= 0.0))
     {
       if (one_sided)
         break;
@@ -1394,7 +1394,7 @@ TriangulationResult Triangulator::process(const Spots& spots, const Triangulatio
   }
 
   std::vector<int> beam_of_spot(spots.size(), -1);
-  if (config_.assignment == BeamAssignment::kSort)
+  if (params_.assignment == BeamAssignment::kSort)
   {
     Spots finite;
     std::vector<int> index;
@@ -1476,12 +1476,12 @@ TriangulationResult Triangulator::process(const Spots& spots, const Triangulatio
                               (undistorted[j].y() - camera_.cy) / camera_.fy, 1.0);
     Eigen::Vector3d p;
     double gap = 0.0;
-    if (!triangulateBeam(ray, projector_.beams[i], &p, &gap) || !(gap <= config_.max_ray_gap))
+    if (!triangulateBeam(ray, projector_.beams[i], &p, &gap) || !(gap <= params_.max_ray_gap))
     {
       ++res.rejected_gap;
       continue;
     }
-    if (!(p.z() >= config_.min_depth && p.z() <= config_.max_depth))
+    if (!(p.z() >= params_.min_depth && p.z() <= params_.max_depth))
     {
       ++res.rejected_depth;
       continue;

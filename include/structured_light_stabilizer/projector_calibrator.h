@@ -37,7 +37,7 @@ struct BoardView
   Spots spots;
 };
 
-struct BoardCalibrationOptions
+struct BoardCalibrationParams
 {
   int rows = 10;
   int cols = 10;
@@ -70,12 +70,12 @@ struct BoardCalibrationResult
 // Fits every beam from >= 2 board views. Fails (ok = false) when a beam has
 // fewer than two board points or a view is unusable; the error names it.
 BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std::vector<BoardView>& views,
-                                           const BoardCalibrationOptions& options);
+                                           const BoardCalibrationParams& options);
 
 // The study's one-distance procedure with a known projector origin.
 BoardCalibrationResult calibrateFromOneBoard(const CameraModel& camera, const BoardView& view,
                                              const Eigen::Vector3d& projector_origin,
-                                             const BoardCalibrationOptions& options);
+                                             const BoardCalibrationParams& options);
 
 // Spot files of the calibration tool: YAML with `distance` (or `plane:
 // [nx, ny, nz, offset]`) and `spots: [[x, y, beam], ...]` (beam -1 = unknown).

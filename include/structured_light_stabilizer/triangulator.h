@@ -44,7 +44,7 @@ enum class BeamAssignment
   kSort,      // the study's row sort: only right when every dot is present and in order
 };
 
-struct TriangulatorOptions
+struct TriangulatorParams
 {
   double min_depth = 0.8;  // metres, bounds of the epipolar segments and of accepted points
   double max_depth = 2.5;
@@ -119,9 +119,9 @@ class Triangulator
 {
 public:
   // Throws std::invalid_argument when the camera, the projector or the
-  // config is unusable (the message says which and why).
+  // params are unusable (the message says which and why).
   Triangulator(const CameraModel& camera, const ProjectorCalibration& projector,
-               const TriangulatorOptions& config = TriangulatorOptions());
+               const TriangulatorParams& params = TriangulatorParams());
 
   TriangulationResult process(const Spots& spots) const;
   // With a tracking prior: `previous` is this Triangulator's result for the
@@ -154,7 +154,7 @@ public:
 
   const CameraModel& camera() const { return camera_; }
   const ProjectorCalibration& projector() const { return projector_; }
-  const TriangulatorOptions& config() const { return config_; }
+  const TriangulatorParams& params() const { return params_; }
   const std::vector<EpipolarSegment>& segments() const { return segments_; }
   // Median image distance between the segment midpoints of neighbouring
   // beams (undistorted px; 0 for a single beam). A dot read as its row
@@ -208,7 +208,7 @@ private:
 
   CameraModel camera_;
   ProjectorCalibration projector_;
-  TriangulatorOptions config_;
+  TriangulatorParams params_;
   std::vector<EpipolarSegment> segments_;
   double beam_pitch_px_ = 0.0;
   double smoothness_scale_px_ = 10.0;  // see the constructor

@@ -157,9 +157,9 @@ private:
     info_ = info;
   }
 
-  static TriangulatorOptions optionsFrom(const Config& c)
+  static TriangulatorParams paramsFrom(const Config& c)
   {
-    TriangulatorOptions o;
+    TriangulatorParams o;
     o.min_depth = c.min_depth;
     o.max_depth = c.max_depth;
     o.max_epipolar_distance_px = c.max_epipolar_distance_px;
@@ -177,7 +177,7 @@ private:
            a.cy == b.cy && a.distortion == b.distortion && a.D == b.D;
   }
 
-  static bool sameOptions(const TriangulatorOptions& a, const TriangulatorOptions& b)
+  static bool sameParams(const TriangulatorParams& a, const TriangulatorParams& b)
   {
     return a.min_depth == b.min_depth && a.max_depth == b.max_depth &&
            a.max_epipolar_distance_px == b.max_epipolar_distance_px && a.max_ray_gap == b.max_ray_gap &&
@@ -248,12 +248,11 @@ private:
       return;
     }
 
-    const TriangulatorOptions options = optionsFrom(config);
+    const TriangulatorParams params = paramsFrom(config);
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
-      if (!triangulator_ || !sameModel(triangulator_->camera(), model) ||
-          !sameOptions(triangulator_->config(), options))
-        triangulator_ = std::make_shared<const Triangulator>(model, calibration_, options);
+      if (!triangulator_ || !sameModel(triangulator_->camera(), model) || !sameParams(triangulator_->params(), params))
+        triangulator_ = std::make_shared<const Triangulator>(model, calibration_, params);
       tri = triangulator_;
     }
 

@@ -81,7 +81,7 @@ TEST(ProjectorCalibrator, TwoBoardsGiveAccurateDepth)
     }
     const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
     const std::vector<BoardView> views{boardView(cam, truth, 1.0, 0.05, 1), boardView(cam, truth, 2.0, 0.05, 2)};
-    BoardCalibrationOptions opt;
+    BoardCalibrationParams opt;
     const BoardCalibrationResult res = calibrateFromBoards(cam, views, opt);
     ASSERT_TRUE(res.ok) << res.error;
     std::cout << "[ MEASURE ] " << res.report() << "\n";
@@ -109,7 +109,7 @@ TEST(ProjectorCalibrator, SelfCheckFlagsAMisidentifiedBeam)
   const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
   std::vector<BoardView> views{boardView(cam, truth, 1.0, 0.05, 3), boardView(cam, truth, 1.5, 0.05, 4),
                                boardView(cam, truth, 2.0, 0.05, 5)};
-  BoardCalibrationOptions opt;
+  BoardCalibrationParams opt;
   BoardCalibrationResult ok = calibrateFromBoards(cam, views, opt);
   ASSERT_TRUE(ok.ok) << ok.error;
   double worst = 0.0;
@@ -143,19 +143,19 @@ TEST(ProjectorCalibrator, UnlabelledViewsAreSortedAndRefusalsNameTheProblem)
   for (BoardView& v : views)
     for (Spot& s : v.spots)
       s.beam = -1;
-  const BoardCalibrationResult res = calibrateFromBoards(cam, views, BoardCalibrationOptions());
+  const BoardCalibrationResult res = calibrateFromBoards(cam, views, BoardCalibrationParams());
   ASSERT_TRUE(res.ok) << res.error;
   for (int i = 0; i < truth.beamCount(); ++i)
     EXPECT_LT((res.calibration.beams[i].direction - truth.beams[i].direction).norm(), 1e-9);
   // Refusals.
-  EXPECT_FALSE(calibrateFromBoards(cam, {views[0]}, BoardCalibrationOptions()).ok);
+  EXPECT_FALSE(calibrateFromBoards(cam, {views[0]}, BoardCalibrationParams()).ok);
   std::vector<BoardView> missing = views;
   missing[1].spots.pop_back();
-  const BoardCalibrationResult r2 = calibrateFromBoards(cam, missing, BoardCalibrationOptions());
+  const BoardCalibrationResult r2 = calibrateFromBoards(cam, missing, BoardCalibrationParams());
   EXPECT_FALSE(r2.ok);
   EXPECT_NE(r2.error.find("view 1"), std::string::npos) << r2.error;
   std::vector<BoardView> same{views[0], views[0]};
-  const BoardCalibrationResult r3 = calibrateFromBoards(cam, same, BoardCalibrationOptions());
+  const BoardCalibrationResult r3 = calibrateFromBoards(cam, same, BoardCalibrationParams());
   EXPECT_FALSE(r3.ok);
   EXPECT_NE(r3.error.find("beam 0"), std::string::npos) << r3.error;
 }

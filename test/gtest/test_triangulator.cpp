@@ -131,7 +131,7 @@ TEST(Triangulator, StudyOneDotExperiment)
   s.y = cam.cy;
   s.beam = 0;
   calib.spots.push_back(s);
-  BoardCalibrationOptions opt;
+  BoardCalibrationParams opt;
   opt.rows = opt.cols = 1;
   const BoardCalibrationResult cr = calibrateFromOneBoard(cam, calib, Eigen::Vector3d(-d, 0, 0), opt);
   ASSERT_TRUE(cr.ok) << cr.error;
@@ -140,7 +140,7 @@ TEST(Triangulator, StudyOneDotExperiment)
   // The true rig: same beam. Table 3.2 (cm): truth, without distortion, with distortion.
   const double table[4][3] = {{137, 136.2463, 136.2557}, {124, 125.2243, 125.2153},
                               {111.5, 113.2045, 113.1927}, {98.5, 100.7686, 106.4445}};
-  TriangulatorOptions tc;
+  TriangulatorParams tc;
   tc.min_depth = 0.5;
   tc.max_depth = 3.0;
   Triangulator tri(cam, cr.calibration, tc);
@@ -201,7 +201,7 @@ TEST(Triangulator, StudyLineOfTenDots)
   view.spots = calib_frame.spots;
   for (Spot& s : view.spots)
     s.beam = -1;  // identified by the study's sort, as the study does
-  BoardCalibrationOptions opt;
+  BoardCalibrationParams opt;
   opt.rows = 1;
   opt.cols = 10;
   const BoardCalibrationResult cr = calibrateFromOneBoard(cam, view, origin, opt);
@@ -215,7 +215,7 @@ TEST(Triangulator, StudyLineOfTenDots)
     EXPECT_NEAR(u.x() / u.z(), tan_alpha_study, 1e-12) << "beam " << k;
   }
 
-  TriangulatorOptions tc;
+  TriangulatorParams tc;
   tc.min_depth = 3.0;
   tc.max_depth = 6.0;
   for (double gap_m : {0.5, 0.9, 1.5})
@@ -351,7 +351,7 @@ TEST(Triangulator, IdentificationMissingAndClutter)
   for (double roll : {0.087, 0.0})
   {
     const ProjectorCalibration proj = sls_test::simLikeProjector(roll);
-    TriangulatorOptions tc;
+    TriangulatorParams tc;
     Triangulator tri(cam, proj, tc);
     tc.assignment = BeamAssignment::kSort;
     Triangulator sorter(cam, proj, tc);
@@ -501,7 +501,7 @@ TEST(Triangulator, NanCentroidsAndGates)
   const Frame ff = sls_test::makeFrame(cam, proj, far_scene, FrameOptions());
   EXPECT_EQ(tri.process(ff.spots).valid_points, 0);
   // Invalid configs are refused with a reason.
-  TriangulatorOptions bad;
+  TriangulatorParams bad;
   bad.min_depth = 3.0;
   bad.max_depth = 1.0;
   EXPECT_FALSE(bad.validate().empty());

@@ -168,7 +168,7 @@ TEST(TriangulatorSim, CalibrationFromSimulatedBoards)
     views.push_back(v);
   }
   const Simulator ref(simConfig(1.5, 0.087, 0.15, 1));
-  const BoardCalibrationResult cal = calibrateFromBoards(ref.camera(), views, BoardCalibrationOptions());
+  const BoardCalibrationResult cal = calibrateFromBoards(ref.camera(), views, BoardCalibrationParams());
   ASSERT_TRUE(cal.ok) << cal.error;
   std::cout << "[ MEASURE ] " << cal.report() << "\n";
   EXPECT_EQ(cal.poor_beams, 0);
@@ -278,7 +278,7 @@ TEST(TriangulatorSim, SequenceWithTrackingPrior)
     c.motion.jitter_translation_m = 0.01;
     c.motion.jitter_rotation_rad = 0.0175;
     const Simulator sim(c);
-    const TriangulatorOptions topt;
+    const TriangulatorParams topt;
     const Triangulator tri(sim.camera(), sim.projector(), topt);
     std::mt19937 rng(99);
     std::uniform_real_distribution<double> uni(-0.5, 0.5);
