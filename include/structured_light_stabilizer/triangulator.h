@@ -144,7 +144,8 @@ public:
   // the spots they agree on) only their common pairs are kept (tracked =
   // -1): on an axis-aligned grid a depth change of one beam pitch of
   // disparity between frames makes the pattern look unmoved. nullptr =
-  // none. Only the epipolar assignment uses it.
+  // none. Only the epipolar assignment uses it. BeamTracker (beam_tracker.h)
+  // keeps `previous` from frame to frame.
   TriangulationResult process(const Spots& spots, const TriangulationResult* previous) const;
 
   // Beam of every spot for already undistorted pixel positions (NaN entries
