@@ -75,10 +75,10 @@ int main(int argc, char** argv)
           right += got >= 0 && got == truth;
           wrong += got >= 0 && got != truth;
         }
-      std::cout << "roll " << roll * 180.0 / M_PI << " deg, " << (method == BeamAssignment::kSort ? "sort    " : "epipolar")
-                << ": " << ms / frames << " ms/frame, " << static_cast<double>(points) / frames << " points/frame, "
-                << right << "/" << visible << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong
-                << " wrong\n";
+      std::cout << "roll " << roll * 180.0 / M_PI << " deg, "
+                << (method == BeamAssignment::kSort ? "sort    " : "epipolar") << ": " << ms / frames << " ms/frame, "
+                << static_cast<double>(points) / frames << " points/frame, " << right << "/" << visible
+                << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong << " wrong\n";
     }
   }
   return 0;

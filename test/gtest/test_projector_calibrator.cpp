@@ -87,7 +87,8 @@ TEST(ProjectorCalibrator, TwoBoardsGiveAccurateDepth)
     std::cout << "[ MEASURE ] " << res.report() << "\n";
     double worst_angle = 0.0;
     for (int i = 0; i < truth.beamCount(); ++i)
-      worst_angle = std::max(worst_angle, std::acos(std::min(1.0, res.calibration.beams[i].direction.dot(truth.beams[i].direction))));
+      worst_angle = std::max(
+          worst_angle, std::acos(std::min(1.0, res.calibration.beams[i].direction.dot(truth.beams[i].direction))));
     std::cout << "[ MEASURE ] " << (distorted ? "plumb_bob" : "no distortion")
               << ": boards at 1.0 + 2.0 m, 0.05 px noise: worst beam direction error " << worst_angle * 1e6
               << " urad, common centre error " << (res.common_centre - truth.beams[0].origin).norm() * 1e3 << " mm\n";
@@ -96,8 +97,8 @@ TEST(ProjectorCalibrator, TwoBoardsGiveAccurateDepth)
     {
       double mm = 0.0;
       const double rel = depthRms(cam, truth, res.calibration, z, 0.04, &mm);
-      std::cout << "[ MEASURE ]   depth RMS with the fitted calibration at " << z << " m: " << mm << " mm = "
-                << rel * 100 << " %\n";
+      std::cout << "[ MEASURE ]   depth RMS with the fitted calibration at " << z << " m: " << mm
+                << " mm = " << rel * 100 << " %\n";
       EXPECT_LT(rel, 0.002);
     }
   }
@@ -207,10 +208,14 @@ TEST(ProjectorCalibrationFiles, FormsAndRefusals)
   {
     const char* file;
     const char* must_mention;
-  } bad[] = {{"wrong_count.yaml", "3 entries"},        {"zero_direction.yaml", "beam 2"},
-             {"not_a_number.yaml", "beam 1 origin"},    {"backwards_beam.yaml", "beam 0"},
-             {"bad_rows.yaml", "'rows'"},               {"study_missing_key.yaml", "beam 1"},
-             {"not_yaml.yaml", "not valid YAML"},       {"does_not_exist.yaml", "cannot open"}};
+  } bad[] = {{"wrong_count.yaml", "3 entries"},
+             {"zero_direction.yaml", "beam 2"},
+             {"not_a_number.yaml", "beam 1 origin"},
+             {"backwards_beam.yaml", "beam 0"},
+             {"bad_rows.yaml", "'rows'"},
+             {"study_missing_key.yaml", "beam 1"},
+             {"not_yaml.yaml", "not valid YAML"},
+             {"does_not_exist.yaml", "cannot open"}};
   for (const auto& b : bad)
   {
     ProjectorCalibration cal;
