@@ -1,18 +1,17 @@
 #include "structured_light_stabilizer/camera_model.h"
 
 #include <cmath>
-#include <limits>
 #include <sstream>
 
 #include <Eigen/LU>
+
+#include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
 {
 
 namespace
 {
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-
 double coeff(const std::vector<double>& D, size_t i)
 {
   return i < D.size() ? D[i] : 0.0;
@@ -48,7 +47,8 @@ std::string CameraModel::validate() const
     }
   }
   if (!(fx > 0.0) || !(fy > 0.0))
-    why << "focal length fx=" << fx << " fy=" << fy << " must be positive (K is all zeros when the camera is uncalibrated); ";
+    why << "focal length fx=" << fx << " fy=" << fy
+        << " must be positive (K is all zeros when the camera is uncalibrated); ";
   for (double d : D)
   {
     if (!std::isfinite(d))
@@ -104,7 +104,7 @@ Eigen::Vector2d CameraModel::distortNormalized(const Eigen::Vector2d& xy) const
 cv::Point2d CameraModel::project(const Eigen::Vector3d& p) const
 {
   if (!(p.z() > 0.0))
-    return {kNaN, kNaN};
+    return {detail::kNaN, detail::kNaN};
   const Eigen::Vector2d d = distortNormalized({p.x() / p.z(), p.y() / p.z()});
   return {fx * d.x() + cx, fy * d.y() + cy};
 }

@@ -7,6 +7,8 @@
 #include <Eigen/Geometry>
 #include <yaml-cpp/yaml.h>
 
+#include "structured_light_stabilizer/detail/math.h"
+
 namespace structured_light_stabilizer
 {
 
@@ -76,9 +78,9 @@ bool readPositiveInt(const YAML::Node& root, const char* key, int* value, std::s
   return true;
 }
 
-// The study's per-beam form (§2.3, formulas 2.28-2.30): x = z tan(alpha) - d_x,
-// y = z tan(beta) - d_y, i.e. a ray from (-d_x, -d_y, 0) along
-// (tan(alpha), tan(beta), 1).
+// The study's per-beam form (docs/study.md §2.3, formulas 2.28-2.30):
+// x = z tan(alpha) - d_x, y = z tan(beta) - d_y, i.e. a ray from
+// (-d_x, -d_y, 0) along (tan(alpha), tan(beta), 1).
 bool readStudyBeam(const YAML::Node& b, const std::string& what, BeamRay* ray, std::string* error)
 {
   double v[4];
@@ -130,7 +132,7 @@ bool readAngle(const YAML::Node& g, const std::string& name, bool required, doub
   const YAML::Node n = rad ? rad : deg;
   try
   {
-    *value = n.as<double>() * (rad ? 1.0 : M_PI / 180.0);
+    *value = n.as<double>() * (rad ? 1.0 : detail::kPi / 180.0);
   }
   catch (const YAML::Exception&)
   {
@@ -145,8 +147,8 @@ bool readAngle(const YAML::Node& g, const std::string& name, bool required, doub
   return true;
 }
 
-// The grid form (SPEC §2): one origin, a central direction, pitch angles and
-// an in-plane roll; expanded by makeGridProjector.
+// The grid form (docs/interface.md): one origin, a central direction, pitch
+// angles and an in-plane roll; expanded by makeGridProjector.
 bool readGrid(const YAML::Node& g, int rows, int cols, ProjectorCalibration* cal, std::string* error)
 {
   if (!g.IsMap())
@@ -176,6 +178,96 @@ bool readGrid(const YAML::Node& g, int rows, int cols, ProjectorCalibration* cal
   return true;
 }
 
+// One entry of the general form (origin/direction) or of the study's form.
+bool readBeam(const YAML::Node& b, const std::string& what, BeamRay* ray, std::string* error)
+{
+  if (!b.IsMap())
+  {
+    *error = what + " must be a map" + at(b);
+    return false;
+  }
+  if (b["origin"] || b["direction"])
+  {
+    if (!readVector3(b["origin"], what + " origin", &ray->origin, error) ||
+        !readVector3(b["direction"], what + " direction", &ray->direction, error))
+      return false;
+    const double n = ray->direction.norm();
+    if (n < 1e-9)
+    {
+      *error = what + " direction is zero" + at(b["direction"]);
+      return false;
+    }
+    ray->direction /= n;
+  }
+  else if (!readStudyBeam(b, what, ray, error))
+  {
+    return false;
+  }
+  if (ray->direction.z() <= 0.0)
+  {
+    *error = what + " points away from the scene (direction z <= 0)" + at(b);
+    return false;
+  }
+  return true;
+}
+
+// The `beams` list: rows * cols entries, row-major.
+bool readBeamList(const YAML::Node& beams, ProjectorCalibration* cal, std::string* error)
+{
+  if (!beams || !beams.IsSequence())
+  {
+    *error = "missing or non-list 'beams'" + at(beams);
+    return false;
+  }
+  if (static_cast<int>(beams.size()) != cal->rows * cal->cols)
+  {
+    *error = "rows*cols = " + std::to_string(cal->rows * cal->cols) + " but 'beams' has " +
+             std::to_string(beams.size()) + " entries" + at(beams);
+    return false;
+  }
+  for (size_t i = 0; i < beams.size(); ++i)
+  {
+    BeamRay ray;
+    if (!readBeam(beams[i], "beam " + std::to_string(i), &ray, error))
+      return false;
+    cal->beams.push_back(ray);
+  }
+  return true;
+}
+
+// parseProjectorCalibration without its guard against yaml-cpp exceptions.
+bool parseProjectorCalibrationUnguarded(const std::string& yaml_text, ProjectorCalibration* out, std::string* error)
+{
+  YAML::Node root;
+  try
+  {
+    root = YAML::Load(yaml_text);
+  }
+  catch (const YAML::Exception& e)
+  {
+    *error = std::string("not valid YAML: ") + e.what();
+    return false;
+  }
+  if (!root.IsMap())
+  {
+    *error = "the top level must be a map with rows, cols and beams";
+    return false;
+  }
+  ProjectorCalibration cal;
+  if (!readPositiveInt(root, "rows", &cal.rows, error) || !readPositiveInt(root, "cols", &cal.cols, error))
+    return false;
+  if (root["grid"] && root["beams"])
+  {
+    *error = "give either 'beams' or 'grid', not both" + at(root["grid"]);
+    return false;
+  }
+  const bool ok =
+      root["grid"] ? readGrid(root["grid"], cal.rows, cal.cols, &cal, error) : readBeamList(root["beams"], &cal, error);
+  if (ok)
+    *out = cal;
+  return ok;
+}
+
 }  // namespace
 
 std::string ProjectorCalibration::validate() const
@@ -198,8 +290,8 @@ std::string ProjectorCalibration::validate() const
 }
 
 ProjectorCalibration makeGridProjector(int rows, int cols, const Eigen::Vector3d& origin,
-                                       const Eigen::Vector3d& centre_direction, double pitch_x_rad,
-                                       double pitch_y_rad, double roll_rad)
+                                       const Eigen::Vector3d& centre_direction, double pitch_x_rad, double pitch_y_rad,
+                                       double roll_rad)
 {
   ProjectorCalibration cal;
   cal.rows = rows;
@@ -227,11 +319,6 @@ ProjectorCalibration makeGridProjector(int rows, int cols, const Eigen::Vector3d
   return cal;
 }
 
-namespace
-{
-bool parseProjectorCalibrationUnguarded(const std::string& yaml_text, ProjectorCalibration* out, std::string* error);
-}
-
 bool parseProjectorCalibration(const std::string& yaml_text, ProjectorCalibration* out, std::string* error)
 {
   std::string local_error;
@@ -248,91 +335,6 @@ bool parseProjectorCalibration(const std::string& yaml_text, ProjectorCalibratio
     return false;
   }
 }
-
-namespace
-{
-bool parseProjectorCalibrationUnguarded(const std::string& yaml_text, ProjectorCalibration* out, std::string* error)
-{
-  YAML::Node root;
-  try
-  {
-    root = YAML::Load(yaml_text);
-  }
-  catch (const YAML::Exception& e)
-  {
-    *error = std::string("not valid YAML: ") + e.what();
-    return false;
-  }
-  if (!root.IsMap())
-  {
-    *error = "the top level must be a map with rows, cols and beams";
-    return false;
-  }
-  ProjectorCalibration cal;
-  if (!readPositiveInt(root, "rows", &cal.rows, error) || !readPositiveInt(root, "cols", &cal.cols, error))
-    return false;
-  if (root["grid"])
-  {
-    if (root["beams"])
-    {
-      *error = "give either 'beams' or 'grid', not both" + at(root["grid"]);
-      return false;
-    }
-    if (!readGrid(root["grid"], cal.rows, cal.cols, &cal, error))
-      return false;
-    *out = cal;
-    return true;
-  }
-  const YAML::Node beams = root["beams"];
-  if (!beams || !beams.IsSequence())
-  {
-    *error = "missing or non-list 'beams'" + at(beams);
-    return false;
-  }
-  if (static_cast<int>(beams.size()) != cal.rows * cal.cols)
-  {
-    *error = "rows*cols = " + std::to_string(cal.rows * cal.cols) + " but 'beams' has " +
-             std::to_string(beams.size()) + " entries" + at(beams);
-    return false;
-  }
-  for (size_t i = 0; i < beams.size(); ++i)
-  {
-    const YAML::Node b = beams[i];
-    const std::string what = "beam " + std::to_string(i);
-    if (!b.IsMap())
-    {
-      *error = what + " must be a map" + at(b);
-      return false;
-    }
-    BeamRay ray;
-    if (b["origin"] || b["direction"])
-    {
-      if (!readVector3(b["origin"], what + " origin", &ray.origin, error) ||
-          !readVector3(b["direction"], what + " direction", &ray.direction, error))
-        return false;
-      const double n = ray.direction.norm();
-      if (n < 1e-9)
-      {
-        *error = what + " direction is zero" + at(b["direction"]);
-        return false;
-      }
-      ray.direction /= n;
-    }
-    else if (!readStudyBeam(b, what, &ray, error))
-    {
-      return false;
-    }
-    if (ray.direction.z() <= 0.0)
-    {
-      *error = what + " points away from the scene (direction z <= 0)" + at(b);
-      return false;
-    }
-    cal.beams.push_back(ray);
-  }
-  *out = cal;
-  return true;
-}
-}  // namespace
 
 bool loadProjectorCalibration(const std::string& path, ProjectorCalibration* out, std::string* error)
 {

@@ -15,6 +15,9 @@ namespace structured_light_stabilizer
 namespace
 {
 
+// Per beam: (view index, board point in the camera frame), in view order.
+using BoardPoints = std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>>;
+
 // Board plane of a view as (n, c) with n . p = c, n unit, facing the camera.
 bool boardPlane(const BoardView& view, Eigen::Vector3d* n, double* c)
 {
@@ -73,10 +76,9 @@ std::string viewName(size_t v, const BoardView& view)
 
 // Board points of every beam, in view order.
 bool collectBoardPoints(const CameraModel& camera, const std::vector<BoardView>& views,
-                        const BoardCalibrationOptions& options,
-                        std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>>* per_beam, std::string* error)
+                        const BoardCalibrationParams& params, BoardPoints* per_beam, std::string* error)
 {
-  const int n_beams = options.rows * options.cols;
+  const int n_beams = params.rows * params.cols;
   per_beam->assign(n_beams, {});
   for (size_t v = 0; v < views.size(); ++v)
   {
@@ -90,7 +92,7 @@ bool collectBoardPoints(const CameraModel& camera, const std::vector<BoardView>&
     }
     std::vector<int> ids;
     std::string why;
-    if (!viewBeamIds(view, options.rows, options.cols, &ids, &why))
+    if (!viewBeamIds(view, params.rows, params.cols, &ids, &why))
     {
       *error = viewName(v, view) + ": " + why;
       return false;
@@ -176,9 +178,8 @@ double reprojectionResidual(const CameraModel& camera, const std::vector<BoardVi
   return points.empty() ? 0.0 : std::sqrt(sum2 / points.size());
 }
 
-void finishReport(const CameraModel& camera, const std::vector<BoardView>& views,
-                  const std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>>& per_beam,
-                  const BoardCalibrationOptions& options, bool use_centre, BoardCalibrationResult* res)
+void finishReport(const CameraModel& camera, const std::vector<BoardView>& views, const BoardPoints& per_beam,
+                  const BoardCalibrationParams& params, bool use_centre, BoardCalibrationResult* res)
 {
   const auto& beams = res->calibration.beams;
   const bool have_centre = use_centre && beams.size() >= 3 && commonCentre(beams, &res->common_centre);
@@ -191,16 +192,74 @@ void finishReport(const CameraModel& camera, const std::vector<BoardView>& views
     f.residual_px = reprojectionResidual(camera, views, per_beam[i], beams[i]);
     f.origin_distance_m = have_centre ? distanceToLine(res->common_centre, beams[i]) : 0.0;
     std::ostringstream why;
-    if (f.residual_px > options.max_residual_px)
-      why << "reprojection residual " << f.residual_px << " px > " << options.max_residual_px << " px; ";
-    if (have_centre && options.max_origin_distance_m > 0.0 && f.origin_distance_m > options.max_origin_distance_m)
+    if (f.residual_px > params.max_residual_px)
+      why << "reprojection residual " << f.residual_px << " px > " << params.max_residual_px << " px; ";
+    if (have_centre && params.max_origin_distance_m > 0.0 && f.origin_distance_m > params.max_origin_distance_m)
       why << "passes " << f.origin_distance_m * 1e3 << " mm from the common projector centre (> "
-          << options.max_origin_distance_m * 1e3 << " mm); ";
+          << params.max_origin_distance_m * 1e3 << " mm); ";
     f.why = why.str();
     f.poor = !f.why.empty();
     if (f.poor)
       ++res->poor_beams;
   }
+}
+
+// The result's error when the camera model is unusable.
+bool usableCamera(const CameraModel& camera, BoardCalibrationResult* res)
+{
+  const std::string why = camera.validate();
+  if (!why.empty())
+    res->error = "camera model: " + why;
+  return why.empty();
+}
+
+// Board points of every beam, and a calibration of the right size to fill.
+bool startCalibration(const CameraModel& camera, const std::vector<BoardView>& views,
+                      const BoardCalibrationParams& params, BoardPoints* per_beam, BoardCalibrationResult* res)
+{
+  if (!collectBoardPoints(camera, views, params, per_beam, &res->error))
+    return false;
+  res->calibration.rows = params.rows;
+  res->calibration.cols = params.cols;
+  res->calibration.beams.resize(per_beam->size());
+  return true;
+}
+
+// Least-squares 3D line through the board points of beam i (principal axis
+// of their scatter), pointing away from the camera.
+bool fitBeamLine(const std::vector<std::pair<size_t, Eigen::Vector3d>>& pts, int i, int cols, BeamRay* ray,
+                 std::string* error)
+{
+  if (pts.size() < 2)
+  {
+    *error = "beam " + std::to_string(i) + " (row " + std::to_string(i / cols) + ", col " + std::to_string(i % cols) +
+             ") was seen on " + std::to_string(pts.size()) + " board(s); it needs two or more";
+    return false;
+  }
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& vp : pts)
+    mean += vp.second;
+  mean /= static_cast<double>(pts.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const auto& vp : pts)
+    scatter += (vp.second - mean) * (vp.second - mean).transpose();
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(scatter);
+  Eigen::Vector3d dir = es.eigenvectors().col(2);
+  if (!(es.eigenvalues()(2) > 1e-12))
+  {
+    *error = "beam " + std::to_string(i) + ": its board points coincide (boards at the same distance?)";
+    return false;
+  }
+  if (dir.z() < 0.0)
+    dir = -dir;
+  if (!(dir.z() > 1e-6))
+  {
+    *error = "beam " + std::to_string(i) + " runs parallel to the boards";
+    return false;
+  }
+  ray->direction = dir.normalized();
+  ray->origin = mean;
+  return true;
 }
 
 }  // namespace
@@ -228,16 +287,12 @@ std::string BoardCalibrationResult::report() const
 }
 
 BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std::vector<BoardView>& views,
-                                           const BoardCalibrationOptions& options)
+                                           const BoardCalibrationParams& params)
 {
   BoardCalibrationResult res;
-  const std::string why = camera.validate();
-  if (!why.empty())
-  {
-    res.error = "camera model: " + why;
+  if (!usableCamera(camera, &res))
     return res;
-  }
-  if (options.rows <= 0 || options.cols <= 0)
+  if (params.rows <= 0 || params.cols <= 0)
   {
     res.error = "rows and cols must be positive";
     return res;
@@ -247,47 +302,13 @@ BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std:
     res.error = "need board views at two or more distances, got " + std::to_string(views.size());
     return res;
   }
-  std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>> per_beam;
-  if (!collectBoardPoints(camera, views, options, &per_beam, &res.error))
+  BoardPoints per_beam;
+  if (!startCalibration(camera, views, params, &per_beam, &res))
     return res;
   ProjectorCalibration& cal = res.calibration;
-  cal.rows = options.rows;
-  cal.cols = options.cols;
-  cal.beams.resize(per_beam.size());
   for (size_t i = 0; i < per_beam.size(); ++i)
-  {
-    const auto& pts = per_beam[i];
-    if (pts.size() < 2)
-    {
-      res.error = "beam " + std::to_string(i) + " (row " + std::to_string(i / options.cols) + ", col " +
-                  std::to_string(i % options.cols) + ") was seen on " + std::to_string(pts.size()) +
-                  " board(s); it needs two or more";
+    if (!fitBeamLine(per_beam[i], static_cast<int>(i), params.cols, &cal.beams[i], &res.error))
       return res;
-    }
-    Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-    for (const auto& vp : pts)
-      mean += vp.second;
-    mean /= static_cast<double>(pts.size());
-    Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
-    for (const auto& vp : pts)
-      scatter += (vp.second - mean) * (vp.second - mean).transpose();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(scatter);
-    Eigen::Vector3d dir = es.eigenvectors().col(2);
-    if (!(es.eigenvalues()(2) > 1e-12))
-    {
-      res.error = "beam " + std::to_string(i) + ": its board points coincide (boards at the same distance?)";
-      return res;
-    }
-    if (dir.z() < 0.0)
-      dir = -dir;
-    if (!(dir.z() > 1e-6))
-    {
-      res.error = "beam " + std::to_string(i) + " runs parallel to the boards";
-      return res;
-    }
-    cal.beams[i].direction = dir.normalized();
-    cal.beams[i].origin = mean;
-  }
   // Express every origin as the point of its beam nearest the projector
   // centre (a readable file; the ray itself is unchanged).
   Eigen::Vector3d centre;
@@ -297,34 +318,27 @@ BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std:
       r.origin = r.pointAt((centre - r.origin).dot(r.direction));
   }
   res.ok = true;
-  finishReport(camera, views, per_beam, options, true, &res);
+  finishReport(camera, views, per_beam, params, true, &res);
   return res;
 }
 
 BoardCalibrationResult calibrateFromOneBoard(const CameraModel& camera, const BoardView& view,
                                              const Eigen::Vector3d& projector_origin,
-                                             const BoardCalibrationOptions& options)
+                                             const BoardCalibrationParams& params)
 {
   BoardCalibrationResult res;
-  const std::string why = camera.validate();
-  if (!why.empty())
-  {
-    res.error = "camera model: " + why;
+  if (!usableCamera(camera, &res))
     return res;
-  }
   if (!projector_origin.allFinite())
   {
     res.error = "the projector origin is not finite";
     return res;
   }
   const std::vector<BoardView> views{view};
-  std::vector<std::vector<std::pair<size_t, Eigen::Vector3d>>> per_beam;
-  if (!collectBoardPoints(camera, views, options, &per_beam, &res.error))
+  BoardPoints per_beam;
+  if (!startCalibration(camera, views, params, &per_beam, &res))
     return res;
   ProjectorCalibration& cal = res.calibration;
-  cal.rows = options.rows;
-  cal.cols = options.cols;
-  cal.beams.resize(per_beam.size());
   for (size_t i = 0; i < per_beam.size(); ++i)
   {
     if (per_beam[i].empty())
@@ -344,7 +358,7 @@ BoardCalibrationResult calibrateFromOneBoard(const CameraModel& camera, const Bo
   res.common_centre = projector_origin;
   res.ok = true;
   // One view cannot check a fit; the report only restates the origin.
-  finishReport(camera, views, per_beam, options, false, &res);
+  finishReport(camera, views, per_beam, params, false, &res);
   return res;
 }
 
@@ -415,8 +429,8 @@ bool saveBoardView(const std::string& path, const BoardView& view, std::string* 
   }
   out.precision(12);
   if (view.plane_normal.squaredNorm() > 0.0)
-    out << "plane: [" << view.plane_normal.x() << ", " << view.plane_normal.y() << ", " << view.plane_normal.z()
-        << ", " << view.plane_offset << "]\n";
+    out << "plane: [" << view.plane_normal.x() << ", " << view.plane_normal.y() << ", " << view.plane_normal.z() << ", "
+        << view.plane_offset << "]\n";
   else
     out << "distance: " << view.distance_m << "\n";
   out << "spots:  # [x, y, beam] distorted pixels, beam -1 = unknown\n";

@@ -35,9 +35,9 @@ struct CameraModel
   DistortionModel distortion = DistortionModel::kNone;
   std::vector<double> D;  // coefficients in the CameraInfo order of the model
 
-  // The camera of the study (§2.1.1): 1024 x 1024 pixels of 12 um and the
-  // focal length f = 12.14 mm, so fx = fy = 12.14 mm / 12 um = 1011.67 px,
-  // principal point at the image centre, no distortion.
+  // The camera of the study (docs/study.md §2.1.1): 1024 x 1024 pixels of
+  // 12 um and the focal length f = 12.14 mm, so fx = fy = 12.14 mm / 12 um =
+  // 1011.67 px, principal point at the image centre, no distortion.
   static CameraModel studyDesign();
 
   // Empty when the model is usable, otherwise why not (zero or NaN focal

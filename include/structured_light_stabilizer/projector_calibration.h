@@ -3,7 +3,7 @@
 // Contract: beams are row-major (beam = r * cols + c); origin is a point on
 // the beam in metres, direction is a unit vector (normalised on load). Every
 // other file form (the study's per-beam tan(alpha), tan(beta), d_x, d_y) is
-// converted to this one on load. See SPEC §2 for the YAML layout.
+// converted to this one on load. See docs/interface.md for the YAML layout.
 #pragma once
 
 #include <string>
@@ -40,8 +40,8 @@ struct ProjectorCalibration
 // central direction `centre_direction`, the whole grid rotated in-plane by
 // `roll_rad` about that direction.
 ProjectorCalibration makeGridProjector(int rows, int cols, const Eigen::Vector3d& origin,
-                                       const Eigen::Vector3d& centre_direction, double pitch_x_rad,
-                                       double pitch_y_rad, double roll_rad);
+                                       const Eigen::Vector3d& centre_direction, double pitch_x_rad, double pitch_y_rad,
+                                       double roll_rad);
 
 // Loads a projector calibration YAML. Returns false and fills *error with a
 // message naming the line or the beam at fault when the file is missing,
@@ -52,7 +52,6 @@ bool loadProjectorCalibration(const std::string& path, ProjectorCalibration* out
 bool parseProjectorCalibration(const std::string& yaml_text, ProjectorCalibration* out, std::string* error);
 
 // Writes the general per-beam ray form.
-bool saveProjectorCalibration(const std::string& path, const ProjectorCalibration& calibration,
-                              std::string* error);
+bool saveProjectorCalibration(const std::string& path, const ProjectorCalibration& calibration, std::string* error);
 
 }  // namespace structured_light_stabilizer

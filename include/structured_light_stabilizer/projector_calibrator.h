@@ -12,9 +12,10 @@
 // the line is exact), the distance of the beam from the projector's common
 // centre (the least-squares point closest to all beams: a misidentified or
 // badly detected dot shows up there even with two views), and a flag when
-// either exceeds its threshold. The study's one-distance procedure (§3.3.1.1,
-// §3.4 step 1: tan(alpha_i) = d/D - P_i Psize/f0) is calibrateFromOneBoard:
-// the projector origin is known, one board view gives the directions.
+// either exceeds its threshold. The study's one-distance procedure
+// (docs/study.md §3.3.1.1, §3.4 step 1: tan(alpha_i) = d/D - P_i Psize/f0)
+// is calibrateFromOneBoard: the projector origin is known, one board view
+// gives the directions.
 #pragma once
 
 #include <string>
@@ -31,13 +32,13 @@ namespace structured_light_stabilizer
 
 struct BoardView
 {
-  double distance_m = 0.0;  // used when plane_normal is zero: the plane z = distance_m
+  double distance_m = 0.0;                                 // used when plane_normal is zero: the plane z = distance_m
   Eigen::Vector3d plane_normal = Eigen::Vector3d::Zero();  // optional general plane n . p = plane_offset
   double plane_offset = 0.0;
   Spots spots;
 };
 
-struct BoardCalibrationOptions
+struct BoardCalibrationParams
 {
   int rows = 10;
   int cols = 10;
@@ -47,11 +48,11 @@ struct BoardCalibrationOptions
 
 struct BeamFit
 {
-  int views = 0;                 // board points used
-  double residual_px = 0.0;      // RMS reprojection residual over the views
+  int views = 0;                   // board points used
+  double residual_px = 0.0;        // RMS reprojection residual over the views
   double origin_distance_m = 0.0;  // distance from the common projector centre
   bool poor = false;
-  std::string why;               // empty unless poor
+  std::string why;  // empty unless poor
 };
 
 struct BoardCalibrationResult
@@ -70,12 +71,12 @@ struct BoardCalibrationResult
 // Fits every beam from >= 2 board views. Fails (ok = false) when a beam has
 // fewer than two board points or a view is unusable; the error names it.
 BoardCalibrationResult calibrateFromBoards(const CameraModel& camera, const std::vector<BoardView>& views,
-                                           const BoardCalibrationOptions& options);
+                                           const BoardCalibrationParams& params);
 
 // The study's one-distance procedure with a known projector origin.
 BoardCalibrationResult calibrateFromOneBoard(const CameraModel& camera, const BoardView& view,
                                              const Eigen::Vector3d& projector_origin,
-                                             const BoardCalibrationOptions& options);
+                                             const BoardCalibrationParams& params);
 
 // Spot files of the calibration tool: YAML with `distance` (or `plane:
 // [nx, ny, nz, offset]`) and `spots: [[x, y, beam], ...]` (beam -1 = unknown).

@@ -183,7 +183,7 @@ private:
     report_pub_.publish(report);
   }
 
-  BoardCalibrationOptions options_;
+  BoardCalibrationParams options_;
   int frames_per_view_ = 5;
   std::string output_, views_dir_;
   std::vector<double> distances_;

@@ -21,6 +21,7 @@
 
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/TriangulatorConfig.h"
+#include "structured_light_stabilizer/beam_tracker.h"
 #include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/projector_calibration.h"
 #include "structured_light_stabilizer/triangulator.h"
@@ -157,9 +158,9 @@ private:
     info_ = info;
   }
 
-  static TriangulatorOptions optionsFrom(const Config& c)
+  static TriangulatorParams paramsFrom(const Config& c)
   {
-    TriangulatorOptions o;
+    TriangulatorParams o;
     o.min_depth = c.min_depth;
     o.max_depth = c.max_depth;
     o.max_epipolar_distance_px = c.max_epipolar_distance_px;
@@ -177,7 +178,7 @@ private:
            a.cy == b.cy && a.distortion == b.distortion && a.D == b.D;
   }
 
-  static bool sameOptions(const TriangulatorOptions& a, const TriangulatorOptions& b)
+  static bool sameParams(const TriangulatorParams& a, const TriangulatorParams& b)
   {
     return a.min_depth == b.min_depth && a.max_depth == b.max_depth &&
            a.max_epipolar_distance_px == b.max_epipolar_distance_px && a.max_ray_gap == b.max_ray_gap &&
@@ -248,12 +249,11 @@ private:
       return;
     }
 
-    const TriangulatorOptions options = optionsFrom(config);
+    const TriangulatorParams params = paramsFrom(config);
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
-      if (!triangulator_ || !sameModel(triangulator_->camera(), model) ||
-          !sameOptions(triangulator_->config(), options))
-        triangulator_ = std::make_shared<const Triangulator>(model, calibration_, options);
+      if (!triangulator_ || !sameModel(triangulator_->camera(), model) || !sameParams(triangulator_->params(), params))
+        triangulator_ = std::make_shared<const Triangulator>(model, calibration_, params);
       tri = triangulator_;
     }
 
@@ -271,31 +271,16 @@ private:
       nan_frames_ += 1;
       return;
     }
-    // Tracking prior: the previous result of this same core object (a new
-    // calibration, camera_info or config makes a new one), unless the stamps
-    // are too far apart or go backwards (a bag looping). When too few beams
-    // persisted, the core itself falls back to the single-frame solution.
-    std::shared_ptr<const TriangulationResult> prior;
+    // Tracking prior: the core's BeamTracker decides when the previous
+    // result may be used (same core object, stamps close and increasing).
+    TriangulationResult result;
     {
+      BeamTrackerParams tracking;
+      tracking.use_tracking = config.use_tracking;
+      tracking.reset_gap_s = config.tracking_reset_gap;
       std::lock_guard<std::mutex> lock(track_mutex_);
-      const double gap = (msg->header.stamp - prior_stamp_).toSec();
-      if (config.use_tracking && prior_ && prior_owner_ == tri && gap > 0.0 && gap <= config.tracking_reset_gap)
-        prior = prior_;
-    }
-    const TriangulationResult result = tri->process(spots, prior.get());
-    {
-      std::lock_guard<std::mutex> lock(track_mutex_);
-      if (config.use_tracking)
-      {
-        prior_ = std::make_shared<const TriangulationResult>(result);
-        prior_owner_ = tri;
-        prior_stamp_ = msg->header.stamp;
-      }
-      else
-      {
-        prior_.reset();
-        prior_owner_.reset();
-      }
+      tracker_.setParams(tracking);
+      result = tracker_.process(tri, spots, msg->header.stamp.toSec());
     }
 
     const ProjectorCalibration& cal = tri->projector();
@@ -379,11 +364,9 @@ private:
   sensor_msgs::CameraInfoConstPtr info_;
   std::shared_ptr<const Triangulator> triangulator_;
 
-  // Tracking prior: the last published result, the core object that made it, its stamp.
+  // Tracking prior: the previous frame's result and when to forget it.
   std::mutex track_mutex_;
-  std::shared_ptr<const TriangulationResult> prior_;
-  std::shared_ptr<const Triangulator> prior_owner_;
-  ros::Time prior_stamp_;
+  BeamTracker tracker_;
   std::atomic<bool> stale_warned_{false};
 
   // ROS I/O.

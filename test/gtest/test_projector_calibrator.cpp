@@ -81,13 +81,14 @@ TEST(ProjectorCalibrator, TwoBoardsGiveAccurateDepth)
     }
     const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
     const std::vector<BoardView> views{boardView(cam, truth, 1.0, 0.05, 1), boardView(cam, truth, 2.0, 0.05, 2)};
-    BoardCalibrationOptions opt;
+    BoardCalibrationParams opt;
     const BoardCalibrationResult res = calibrateFromBoards(cam, views, opt);
     ASSERT_TRUE(res.ok) << res.error;
     std::cout << "[ MEASURE ] " << res.report() << "\n";
     double worst_angle = 0.0;
     for (int i = 0; i < truth.beamCount(); ++i)
-      worst_angle = std::max(worst_angle, std::acos(std::min(1.0, res.calibration.beams[i].direction.dot(truth.beams[i].direction))));
+      worst_angle = std::max(
+          worst_angle, std::acos(std::min(1.0, res.calibration.beams[i].direction.dot(truth.beams[i].direction))));
     std::cout << "[ MEASURE ] " << (distorted ? "plumb_bob" : "no distortion")
               << ": boards at 1.0 + 2.0 m, 0.05 px noise: worst beam direction error " << worst_angle * 1e6
               << " urad, common centre error " << (res.common_centre - truth.beams[0].origin).norm() * 1e3 << " mm\n";
@@ -96,8 +97,8 @@ TEST(ProjectorCalibrator, TwoBoardsGiveAccurateDepth)
     {
       double mm = 0.0;
       const double rel = depthRms(cam, truth, res.calibration, z, 0.04, &mm);
-      std::cout << "[ MEASURE ]   depth RMS with the fitted calibration at " << z << " m: " << mm << " mm = "
-                << rel * 100 << " %\n";
+      std::cout << "[ MEASURE ]   depth RMS with the fitted calibration at " << z << " m: " << mm
+                << " mm = " << rel * 100 << " %\n";
       EXPECT_LT(rel, 0.002);
     }
   }
@@ -109,7 +110,7 @@ TEST(ProjectorCalibrator, SelfCheckFlagsAMisidentifiedBeam)
   const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
   std::vector<BoardView> views{boardView(cam, truth, 1.0, 0.05, 3), boardView(cam, truth, 1.5, 0.05, 4),
                                boardView(cam, truth, 2.0, 0.05, 5)};
-  BoardCalibrationOptions opt;
+  BoardCalibrationParams opt;
   BoardCalibrationResult ok = calibrateFromBoards(cam, views, opt);
   ASSERT_TRUE(ok.ok) << ok.error;
   double worst = 0.0;
@@ -143,19 +144,19 @@ TEST(ProjectorCalibrator, UnlabelledViewsAreSortedAndRefusalsNameTheProblem)
   for (BoardView& v : views)
     for (Spot& s : v.spots)
       s.beam = -1;
-  const BoardCalibrationResult res = calibrateFromBoards(cam, views, BoardCalibrationOptions());
+  const BoardCalibrationResult res = calibrateFromBoards(cam, views, BoardCalibrationParams());
   ASSERT_TRUE(res.ok) << res.error;
   for (int i = 0; i < truth.beamCount(); ++i)
     EXPECT_LT((res.calibration.beams[i].direction - truth.beams[i].direction).norm(), 1e-9);
   // Refusals.
-  EXPECT_FALSE(calibrateFromBoards(cam, {views[0]}, BoardCalibrationOptions()).ok);
+  EXPECT_FALSE(calibrateFromBoards(cam, {views[0]}, BoardCalibrationParams()).ok);
   std::vector<BoardView> missing = views;
   missing[1].spots.pop_back();
-  const BoardCalibrationResult r2 = calibrateFromBoards(cam, missing, BoardCalibrationOptions());
+  const BoardCalibrationResult r2 = calibrateFromBoards(cam, missing, BoardCalibrationParams());
   EXPECT_FALSE(r2.ok);
   EXPECT_NE(r2.error.find("view 1"), std::string::npos) << r2.error;
   std::vector<BoardView> same{views[0], views[0]};
-  const BoardCalibrationResult r3 = calibrateFromBoards(cam, same, BoardCalibrationOptions());
+  const BoardCalibrationResult r3 = calibrateFromBoards(cam, same, BoardCalibrationParams());
   EXPECT_FALSE(r3.ok);
   EXPECT_NE(r3.error.find("beam 0"), std::string::npos) << r3.error;
 }
@@ -207,10 +208,14 @@ TEST(ProjectorCalibrationFiles, FormsAndRefusals)
   {
     const char* file;
     const char* must_mention;
-  } bad[] = {{"wrong_count.yaml", "3 entries"},        {"zero_direction.yaml", "beam 2"},
-             {"not_a_number.yaml", "beam 1 origin"},    {"backwards_beam.yaml", "beam 0"},
-             {"bad_rows.yaml", "'rows'"},               {"study_missing_key.yaml", "beam 1"},
-             {"not_yaml.yaml", "not valid YAML"},       {"does_not_exist.yaml", "cannot open"}};
+  } bad[] = {{"wrong_count.yaml", "3 entries"},
+             {"zero_direction.yaml", "beam 2"},
+             {"not_a_number.yaml", "beam 1 origin"},
+             {"backwards_beam.yaml", "beam 0"},
+             {"bad_rows.yaml", "'rows'"},
+             {"study_missing_key.yaml", "beam 1"},
+             {"not_yaml.yaml", "not valid YAML"},
+             {"does_not_exist.yaml", "cannot open"}};
   for (const auto& b : bad)
   {
     ProjectorCalibration cal;

@@ -36,8 +36,8 @@ struct IdStats
 {
   int visible = 0;  // spots of a real beam presented to the triangulator
   int correct = 0;
-  int wrong = 0;    // a beam given another beam's dot, a clutter spot or a merged blob
-  int missed = 0;   // a real spot left unassigned
+  int wrong = 0;   // a beam given another beam's dot, a clutter spot or a merged blob
+  int missed = 0;  // a real spot left unassigned
 };
 
 void countIdentification(const Frame& f, const TriangulationResult& r, IdStats* s)
@@ -93,8 +93,8 @@ TEST(Triangulator, ReducesToStudyFormula227)
   // The general study form (2.28-2.30) with d_y and beta, loaded from YAML.
   ProjectorCalibration cal;
   std::string err;
-  ASSERT_TRUE(parseProjectorCalibration("rows: 1\ncols: 1\nbeams:\n  - {tan_alpha: 0.2, tan_beta: -0.05, d_x: 0.3, d_y: 0.1}\n",
-                                        &cal, &err))
+  ASSERT_TRUE(parseProjectorCalibration(
+      "rows: 1\ncols: 1\nbeams:\n  - {tan_alpha: 0.2, tan_beta: -0.05, d_x: 0.3, d_y: 0.1}\n", &cal, &err))
       << err;
   for (double z : {0.9, 1.4, 2.2})
   {
@@ -131,16 +131,16 @@ TEST(Triangulator, StudyOneDotExperiment)
   s.y = cam.cy;
   s.beam = 0;
   calib.spots.push_back(s);
-  BoardCalibrationOptions opt;
+  BoardCalibrationParams opt;
   opt.rows = opt.cols = 1;
   const BoardCalibrationResult cr = calibrateFromOneBoard(cam, calib, Eigen::Vector3d(-d, 0, 0), opt);
   ASSERT_TRUE(cr.ok) << cr.error;
   EXPECT_NEAR(cr.calibration.beams[0].direction.x() / cr.calibration.beams[0].direction.z(), d / D, 1e-12);
 
   // The true rig: same beam. Table 3.2 (cm): truth, without distortion, with distortion.
-  const double table[4][3] = {{137, 136.2463, 136.2557}, {124, 125.2243, 125.2153},
-                              {111.5, 113.2045, 113.1927}, {98.5, 100.7686, 106.4445}};
-  TriangulatorOptions tc;
+  const double table[4][3] = {
+      {137, 136.2463, 136.2557}, {124, 125.2243, 125.2153}, {111.5, 113.2045, 113.1927}, {98.5, 100.7686, 106.4445}};
+  TriangulatorParams tc;
   tc.min_depth = 0.5;
   tc.max_depth = 3.0;
   Triangulator tri(cam, cr.calibration, tc);
@@ -163,8 +163,8 @@ TEST(Triangulator, StudyOneDotExperiment)
     const double p_study = cam.fx * (d / (row[1] / 100.0) - d / D);
     std::cout << "[ MEASURE ] " << std::setw(8) << row[0] << " | " << std::setw(12) << z_cm << " | " << row[1] << ", "
               << std::showpos << (row[1] - row[0]) / row[0] * 100 << " %, " << (p_study - p_exact) << " px"
-              << std::noshowpos << " | " << row[2] << ", " << std::showpos << (row[2] - row[0]) / row[0] * 100
-              << " %" << std::noshowpos << "\n";
+              << std::noshowpos << " | " << row[2] << ", " << std::showpos << (row[2] - row[0]) / row[0] * 100 << " %"
+              << std::noshowpos << "\n";
   }
   // Depth change per pixel of centroid error at 98.5 cm: dz/dp = z^2 / (f d).
   std::cout << "[ MEASURE ] 1 px of centroid error at 98.5 cm = " << 0.985 * 0.985 / (cam.fx * d) * 1000
@@ -201,7 +201,7 @@ TEST(Triangulator, StudyLineOfTenDots)
   view.spots = calib_frame.spots;
   for (Spot& s : view.spots)
     s.beam = -1;  // identified by the study's sort, as the study does
-  BoardCalibrationOptions opt;
+  BoardCalibrationParams opt;
   opt.rows = 1;
   opt.cols = 10;
   const BoardCalibrationResult cr = calibrateFromOneBoard(cam, view, origin, opt);
@@ -215,7 +215,7 @@ TEST(Triangulator, StudyLineOfTenDots)
     EXPECT_NEAR(u.x() / u.z(), tan_alpha_study, 1e-12) << "beam " << k;
   }
 
-  TriangulatorOptions tc;
+  TriangulatorParams tc;
   tc.min_depth = 3.0;
   tc.max_depth = 6.0;
   for (double gap_m : {0.5, 0.9, 1.5})
@@ -249,10 +249,9 @@ TEST(Triangulator, StudyLineOfTenDots)
         worst_mm = std::max(worst_mm, (r.points[k] - f.truth[k]).norm() * 1e3);
       }
     }
-    std::cout << "[ MEASURE ] object " << gap_m << " m before the board (" << on_object
-              << " dots on it): epipolar " << epi.correct << "/" << epi.visible << " right, " << epi.wrong
-              << " wrong, worst 3D error " << worst_mm << " mm; study sort " << srt.correct << "/" << srt.visible
-              << " right, " << srt.wrong << " wrong\n";
+    std::cout << "[ MEASURE ] object " << gap_m << " m before the board (" << on_object << " dots on it): epipolar "
+              << epi.correct << "/" << epi.visible << " right, " << epi.wrong << " wrong, worst 3D error " << worst_mm
+              << " mm; study sort " << srt.correct << "/" << srt.visible << " right, " << srt.wrong << " wrong\n";
     EXPECT_EQ(epi.wrong, 0);
     EXPECT_EQ(epi.correct, epi.visible);
     EXPECT_LT(worst_mm, 1e-6);
@@ -330,9 +329,9 @@ TEST(Triangulator, DepthAccuracyOnRock)
         }
       }
       const double rms_mm = std::sqrt(sum2 / n) * 1e3, rms_pct = std::sqrt(sum2_rel / n) * 100.0;
-      std::cout << "[ MEASURE ] " << (dm == DistortionModel::kNone ? "no distortion" : "plumb_bob    ")
-                << " rock at " << z << " m, 0.04 px noise: depth RMS " << rms_mm << " mm = " << rms_pct
-                << " %, mean ray gap " << gap_sum / n * 1e3 << " mm (" << n << " points)\n";
+      std::cout << "[ MEASURE ] " << (dm == DistortionModel::kNone ? "no distortion" : "plumb_bob    ") << " rock at "
+                << z << " m, 0.04 px noise: depth RMS " << rms_mm << " mm = " << rms_pct << " %, mean ray gap "
+                << gap_sum / n * 1e3 << " mm (" << n << " points)\n";
       EXPECT_LT(rms_pct, 0.1);
     }
   }
@@ -351,7 +350,7 @@ TEST(Triangulator, IdentificationMissingAndClutter)
   for (double roll : {0.087, 0.0})
   {
     const ProjectorCalibration proj = sls_test::simLikeProjector(roll);
-    TriangulatorOptions tc;
+    TriangulatorParams tc;
     Triangulator tri(cam, proj, tc);
     tc.assignment = BeamAssignment::kSort;
     Triangulator sorter(cam, proj, tc);
@@ -392,9 +391,9 @@ TEST(Triangulator, IdentificationMissingAndClutter)
     std::cout << "[ MEASURE ] roll " << roll * 180 / M_PI << " deg, 10 % missing, 20 clutter spots, " << frames
               << " frames: epipolar " << epi.correct << "/" << epi.visible << " right, " << epi.wrong << " wrong, "
               << epi.missed << " left unassigned, " << frames_complete << " frames complete; identifiable "
-              << identifiable_right << "/" << identifiable << " right, ambiguous (a spot within the gate and half a pitch) "
-              << ambiguous_right << "/" << ambiguous << " right; study sort " << srt.correct << " right, " << srt.wrong
-              << " wrong\n";
+              << identifiable_right << "/" << identifiable
+              << " right, ambiguous (a spot within the gate and half a pitch) " << ambiguous_right << "/" << ambiguous
+              << " right; study sort " << srt.correct << " right, " << srt.wrong << " wrong\n";
     EXPECT_EQ(epi.wrong, 0);
     // Axis-aligned: rows parallel to the baseline are read jointly
     // (resolveLines). Rotated: order-free assignment + consistency check,
@@ -432,8 +431,8 @@ TEST(Triangulator, MergedDotsAreRejected)
         merged_assigned += f.spots[j].beam == -2 && r.beam_of_spot[j] >= 0;
     }
     std::cout << "[ MEASURE ] roll " << roll * 180 / M_PI << " deg, 4 merged pairs per frame: " << s.correct << "/"
-              << s.visible << " single dots right, " << s.wrong << " wrong, merged blobs assigned: "
-              << merged_assigned << "\n";
+              << s.visible << " single dots right, " << s.wrong << " wrong, merged blobs assigned: " << merged_assigned
+              << "\n";
     EXPECT_EQ(s.wrong, 0);
     EXPECT_EQ(merged_assigned, 0);
     EXPECT_GE(s.correct, (roll != 0.0 ? 1.0 : 0.9) * s.visible);
@@ -501,7 +500,7 @@ TEST(Triangulator, NanCentroidsAndGates)
   const Frame ff = sls_test::makeFrame(cam, proj, far_scene, FrameOptions());
   EXPECT_EQ(tri.process(ff.spots).valid_points, 0);
   // Invalid configs are refused with a reason.
-  TriangulatorOptions bad;
+  TriangulatorParams bad;
   bad.min_depth = 3.0;
   bad.max_depth = 1.0;
   EXPECT_FALSE(bad.validate().empty());
@@ -546,7 +545,8 @@ TEST(Triangulator, TrackingPrior)
       const EpipolarSegment& sg = tri.segments()[beam];
       const Eigen::Vector2d along = (sg.far_px - sg.near_px).normalized();
       const Eigen::Vector2d u = tri.undistortPixel(g.spots[j].x, g.spots[j].y) + 12.0 * along;
-      const Eigen::Vector2d d = cam.distortNormalized(Eigen::Vector2d((u.x() - cam.cx) / cam.fx, (u.y() - cam.cy) / cam.fy));
+      const Eigen::Vector2d d =
+          cam.distortNormalized(Eigen::Vector2d((u.x() - cam.cx) / cam.fx, (u.y() - cam.cy) / cam.fy));
       g.spots[j].x = cam.fx * d.x() + cam.cx;
       g.spots[j].y = cam.fy * d.y() + cam.cy;
       g.spots[j].beam = -1;

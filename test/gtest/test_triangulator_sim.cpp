@@ -168,7 +168,7 @@ TEST(TriangulatorSim, CalibrationFromSimulatedBoards)
     views.push_back(v);
   }
   const Simulator ref(simConfig(1.5, 0.087, 0.15, 1));
-  const BoardCalibrationResult cal = calibrateFromBoards(ref.camera(), views, BoardCalibrationOptions());
+  const BoardCalibrationResult cal = calibrateFromBoards(ref.camera(), views, BoardCalibrationParams());
   ASSERT_TRUE(cal.ok) << cal.error;
   std::cout << "[ MEASURE ] " << cal.report() << "\n";
   EXPECT_EQ(cal.poor_beams, 0);
@@ -182,9 +182,9 @@ TEST(TriangulatorSim, CalibrationFromSimulatedBoards)
       const SimSpots s = spotsFromSim(sim, 0.0, 0.05, 0.0, 0, 100 + k);
       tally.add(s, tri.process(s.spots), tri);
     }
-    std::cout << "[ MEASURE ] fitted calibration, sim rock at " << z << " m: depth RMS " << tally.rmsMm() << " mm = "
-              << tally.rmsRel() * 100 << " %; " << tally.correct << "/" << tally.visible << " right, " << tally.wrong
-              << " wrong\n";
+    std::cout << "[ MEASURE ] fitted calibration, sim rock at " << z << " m: depth RMS " << tally.rmsMm()
+              << " mm = " << tally.rmsRel() * 100 << " %; " << tally.correct << "/" << tally.visible << " right, "
+              << tally.wrong << " wrong\n";
     EXPECT_LT(tally.rmsRel(), 0.002);
     EXPECT_EQ(tally.wrong, 0);
   }
@@ -212,10 +212,10 @@ SeqFrame sequenceFrame(const Simulator& sim, double t, double drop, int clutter,
   std::normal_distribution<double> noise(0.0, 0.05);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   const Eigen::Isometry3d cam_from_rock = sim.cameraPose(t).inverse();
-  const auto seen = [&](const Eigen::Vector3d& x, cv::Point2d* px) {
+  const auto seen = [&](const Eigen::Vector3d& x, cv::Point2d* px)
+  {
     Eigen::Vector3d h;
-    if (!(x.z() > 0.0) || !sim.intersect(t, Eigen::Vector3d::Zero(), x.normalized(), &h) ||
-        h.norm() < x.norm() - 5e-4)
+    if (!(x.z() > 0.0) || !sim.intersect(t, Eigen::Vector3d::Zero(), x.normalized(), &h) || h.norm() < x.norm() - 5e-4)
       return false;
     *px = cam.project(x);
     return px->x >= 0.0 && px->y >= 0.0 && px->x <= cam.width - 1 && px->y <= cam.height - 1;
@@ -278,7 +278,7 @@ TEST(TriangulatorSim, SequenceWithTrackingPrior)
     c.motion.jitter_translation_m = 0.01;
     c.motion.jitter_rotation_rad = 0.0175;
     const Simulator sim(c);
-    const TriangulatorOptions topt;
+    const TriangulatorParams topt;
     const Triangulator tri(sim.camera(), sim.projector(), topt);
     std::mt19937 rng(99);
     std::uniform_real_distribution<double> uni(-0.5, 0.5);

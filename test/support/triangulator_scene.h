@@ -177,7 +177,7 @@ inline std::vector<char> ambiguousDots(const Triangulator& tri, const Spots& spo
   std::vector<Eigen::Vector2d> px(spots.size());
   for (size_t j = 0; j < spots.size(); ++j)
     px[j] = tri.undistortPixel(spots[j].x, spots[j].y);
-  const double gate = tri.config().max_epipolar_distance_px;
+  const double gate = tri.params().max_epipolar_distance_px;
   std::vector<char> out(spots.size(), 0);
   for (size_t j = 0; j < spots.size(); ++j)
   {

@@ -3,7 +3,7 @@
 // simulator's 10 x 10 projector: 10 % of the dots missing, 20 spurious
 // spots, 0.04 px noise; rolled (5 deg) and axis-aligned grids, and the
 // study's sort for comparison; the epipolar method also with a tracking
-// prior (the frame's own single-frame result). Usage: bench_triangulator [frames]
+// prior (the frame's own single-frame result). Usage: benchmark_triangulator [frames]
 #include <chrono>
 #include <algorithm>
 #include <cstdlib>
@@ -38,7 +38,7 @@ int main(int argc, char** argv)
     }
     for (BeamAssignment method : {BeamAssignment::kEpipolar, BeamAssignment::kSort})
     {
-      TriangulatorOptions o;
+      TriangulatorParams o;
       o.assignment = method;
       const Triangulator tri(cam, proj, o);
       long points = 0;
@@ -75,10 +75,10 @@ int main(int argc, char** argv)
           right += got >= 0 && got == truth;
           wrong += got >= 0 && got != truth;
         }
-      std::cout << "roll " << roll * 180.0 / M_PI << " deg, " << (method == BeamAssignment::kSort ? "sort    " : "epipolar")
-                << ": " << ms / frames << " ms/frame, " << static_cast<double>(points) / frames << " points/frame, "
-                << right << "/" << visible << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong
-                << " wrong\n";
+      std::cout << "roll " << roll * 180.0 / M_PI << " deg, "
+                << (method == BeamAssignment::kSort ? "sort    " : "epipolar") << ": " << ms / frames << " ms/frame, "
+                << static_cast<double>(points) / frames << " points/frame, " << right << "/" << visible
+                << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong << " wrong\n";
     }
   }
   return 0;
