@@ -33,7 +33,7 @@
 #include "structured_light_stabilizer/CameraDriverConfig.h"
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/PoseDelta.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 #include "structured_light_stabilizer/projector_calibration.h"
 #include "structured_light_stabilizer/simulator.h"
 

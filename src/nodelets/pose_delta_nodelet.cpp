@@ -30,7 +30,7 @@
 
 #include "structured_light_stabilizer/PoseDelta.h"
 #include "structured_light_stabilizer/PoseDeltaConfig.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 #include "structured_light_stabilizer/pose_delta.h"
 
 namespace structured_light_stabilizer

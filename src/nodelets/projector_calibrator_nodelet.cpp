@@ -22,7 +22,7 @@
 #include <std_srvs/Trigger.h>
 
 #include "structured_light_stabilizer/CentroidArray.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 #include "structured_light_stabilizer/projector_calibrator.h"
 #include "structured_light_stabilizer/triangulator.h"
 

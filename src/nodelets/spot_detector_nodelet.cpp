@@ -20,7 +20,7 @@
 
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/SpotDetectorConfig.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 #include "structured_light_stabilizer/spot_detector.h"
 #include "drop_log.h"
 

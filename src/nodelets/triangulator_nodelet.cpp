@@ -21,7 +21,7 @@
 
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/TriangulatorConfig.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 #include "structured_light_stabilizer/projector_calibration.h"
 #include "structured_light_stabilizer/triangulator.h"
 #include "drop_log.h"

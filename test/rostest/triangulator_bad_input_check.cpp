@@ -12,7 +12,7 @@
 
 #include "../gtest/triangulator_scene.h"
 #include "structured_light_stabilizer/CentroidArray.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 
 using namespace structured_light_stabilizer;
 
