@@ -1,4 +1,4 @@
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 
 #include <cmath>
 #include <limits>

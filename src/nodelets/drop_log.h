@@ -1,11 +1,12 @@
 // Throttling of "frame dropped" messages in the nodelets: each kind of
 // problem is logged at once, then at most every period, with the number of
 // frames dropped for it meanwhile. The kind is the message with its digits
-// removed except inside 'quotes' (names such as '16UC1'), so that one problem
-// with varying sizes ("step 100", "step 63") is one kind, while different problems (an encoding, an empty image, a short
-// step, NaN intrinsics) are each named; a throttle per call site would show
-// only the first of them, and one keyed on the last message alone floods
-// rosout when bad frames of two kinds alternate.
+// removed except inside 'quotes' (names such as '16UC1'), so that one
+// problem with varying sizes ("step 100", "step 63") is one kind, while
+// different problems (an encoding, an empty image, a short step, NaN
+// intrinsics) are each named; a throttle per call site would show only the
+// first of them, and one keyed on the last message alone floods rosout when
+// bad frames of two kinds alternate.
 #pragma once
 
 #include <cctype>

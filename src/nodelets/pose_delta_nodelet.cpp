@@ -4,21 +4,19 @@
 // part) -> PoseDeltaEstimator (core) -> pose_delta, tf, diagnostics, and the
 // service pose_delta/lock. Images are matched to clouds by header stamp from a
 // short buffer; a cloud whose image never comes is processed on geometry.
+#include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <deque>
 #include <memory>
 #include <mutex>
 #include <string>
 
 #include <boost/thread/recursive_mutex.hpp>
 #include <cv_bridge/cv_bridge.h>
-#include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
 #include <dynamic_reconfigure/server.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <image_transport/image_transport.h>
-#include <nodelet/nodelet.h>
 #include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -30,119 +28,207 @@
 
 #include "structured_light_stabilizer/PoseDelta.h"
 #include "structured_light_stabilizer/PoseDeltaConfig.h"
-#include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/pose_delta.h"
+#include "cloud_image_matcher.h"
+#include "conversions.h"
+#include "nodelet_base.h"
 
 namespace structured_light_stabilizer
 {
 
-namespace enc = sensor_msgs::image_encodings;
+namespace
+{
 
-class PoseDeltaNodelet : public nodelet::Nodelet
+namespace enc = sensor_msgs::image_encodings;
+using Config = structured_light_stabilizer::PoseDeltaConfig;
+
+// ---- The core interface: dynamic_reconfigure -> PoseDeltaParams (the
+// names of cfg/PoseDelta.cfg are the core's; config.mode must be valid).
+PoseDeltaParams paramsFromConfig(const Config& config)
+{
+  PoseDeltaParams p;
+  p.mode = config.mode == "frame_to_frame" ? PoseDeltaMode::kFrameToFrame : PoseDeltaMode::kReference;
+  p.use_texture = config.use_texture;
+  p.symmetric = config.symmetric;
+  // Solver.
+  p.min_points = config.min_points;
+  p.max_iterations = config.max_iterations;
+  p.huber_k = config.huber_k;
+  p.min_geometry_sigma_m = config.min_geometry_sigma_m;
+  p.min_texture_sigma_px = config.min_texture_sigma_px;
+  p.freeze_factor = config.freeze_factor;
+  p.max_edge_ratio = config.max_edge_ratio;
+  // Validity.
+  p.max_sigma_translation_m = config.max_sigma_translation_m;
+  p.max_sigma_rotation_rad = config.max_sigma_rotation_deg * M_PI / 180.0;
+  p.max_rms_residual_m = config.max_rms_residual_m;
+  // Texture.
+  p.texture_max_features = config.texture_max_features;
+  p.texture_min_features = config.texture_min_features;
+  p.texture_min_distance_px = config.texture_min_distance_px;
+  p.texture_whole_image = config.texture_whole_image;
+  p.texture_window_px = config.texture_window_px;
+  p.texture_refinement_window_px = config.texture_refinement_window_px;
+  p.texture_depth_sigma_m = config.texture_depth_sigma_m;
+  p.texture_extrapolated_depth_sigma_m = config.texture_extrapolated_depth_sigma_m;
+  p.texture_error_inflation = config.texture_error_inflation;
+  p.texture_pyramid_levels = config.texture_pyramid_levels;
+  p.texture_dot_clearance_px = config.texture_dot_clearance_px;
+  p.texture_roi_margin_px = config.texture_roi_margin_px;
+  return p;
+}
+
+void fillFromResult(const PoseDeltaResult& r, PoseDelta* msg)
+{
+  msg->transform = transformFromIsometry(r.transform);
+  for (int i = 0; i < 36; ++i)
+    msg->covariance[i] = r.covariance(i / 6, i % 6);
+  msg->rms_residual = r.rms_residual_m;
+  msg->points_used = static_cast<uint32_t>(std::max(0, r.points_used));
+  msg->valid = r.valid;
+  msg->status = r.status;
+}
+
+void fillInvalid(PoseDelta* msg, const std::string& status)
+{
+  msg->transform.rotation.w = 1.0;
+  msg->valid = false;
+  msg->status = status;
+  msg->points_used = 0;
+}
+
+}  // namespace
+
+class PoseDeltaNodelet : public NodeletBase
 {
 public:
-  ~PoseDeltaNodelet() override
-  {
-    diagnostics_timer_.stop();
-    std::lock_guard<std::mutex> lock(connect_mutex_);
-    points_sub_.shutdown();
-    image_sub_.shutdown();
-    info_sub_.shutdown();
-  }
+  PoseDeltaNodelet() : NodeletBase("PoseDelta") {}
+  ~PoseDeltaNodelet() override { stopCallbacks(); }
 
 private:
-  using ReconfigureServer = dynamic_reconfigure::Server<PoseDeltaConfig>;
-
   void onInit() override
   {
     ros::NodeHandle& nh = getNodeHandle();
     ros::NodeHandle& pnh = getPrivateNodeHandle();
-    pnh.param("lazy", lazy_, true);
+    readLazyParam();
     pnh.param("auto_lock", auto_lock_, true);
     pnh.param("camera_frame", camera_frame_param_, std::string());
     pnh.param("image_queue_size", image_queue_size_, 5);
     image_queue_size_ = std::max(1, image_queue_size_);
-    double min_rate = 1.0, max_rate = 200.0;
-    pnh.param("diagnostic_min_rate", min_rate, min_rate);
-    pnh.param("diagnostic_max_rate", max_rate, max_rate);
-    min_rate_ = min_rate;
-    max_rate_ = max_rate;
-
+    matcher_.setImageQueueSize(image_queue_size_);
+    pnh.param("diagnostic_min_rate", min_frequency_, 1.0);
+    pnh.param("diagnostic_max_rate", max_frequency_, 200.0);
     it_.reset(new image_transport::ImageTransport(nh));
 
     // dynamic_reconfigure: the server reads ~ params (mode, use_texture, ...)
     // and calls back at once with the initial config.
-    reconfigure_server_.reset(new ReconfigureServer(reconfigure_mutex_, pnh));
-    reconfigure_server_->setCallback(
-        [this](PoseDeltaConfig& config, uint32_t level) { onReconfigure(config, level); });
+    reconfigure_server_.reset(new dynamic_reconfigure::Server<Config>(config_mutex_, pnh));
+    reconfigure_server_->setCallback([this](Config& config, uint32_t level) { configCb(config, level); });
     {
       // The start-up mode must not count as a mode change (that re-locks,
       // which would defeat ~auto_lock:=false).
-      std::lock_guard<std::mutex> lock(config_mutex_);
-      estimator_.setParams(config_);
-      config_changed_ = false;
+      std::lock_guard<std::mutex> lock(params_mutex_);
+      estimator_.setParams(params_);
+      params_changed_ = false;
     }
     estimator_.reset(auto_lock_);
 
-    updater_.reset(new diagnostic_updater::Updater(nh, pnh, getName()));
-    updater_->setHardwareID("none");
-    updater_->add("pose delta", this, &PoseDeltaNodelet::diagnose);
-    pose_diag_.reset(new diagnostic_updater::TopicDiagnostic(
-        "pose_delta", *updater_, diagnostic_updater::FrequencyStatusParam(&min_rate_, &max_rate_, 0.1, 10),
+    setUpDiagnostics("none");
+    diagnostics_->add("pose delta", this, &PoseDeltaNodelet::diagnose);
+    pose_diagnostic_.reset(new diagnostic_updater::TopicDiagnostic(
+        "pose_delta", *diagnostics_,
+        diagnostic_updater::FrequencyStatusParam(&min_frequency_, &max_frequency_, 0.1, 10),
         diagnostic_updater::TimeStampStatusParam(-1.0, 5.0)));
-    diagnostics_timer_ = nh.createTimer(ros::Duration(0.5), [this](const ros::TimerEvent&) { updater_->update(); });
+    startDiagnostics(0.5);
 
-    lock_service_ = nh.advertiseService("pose_delta/lock", &PoseDeltaNodelet::onLock, this);
-    {
-      std::lock_guard<std::mutex> lock(connect_mutex_);
-      ros::SubscriberStatusCallback cb = [this](const ros::SingleSubscriberPublisher&) { connectCb(); };
-      pose_pub_ = nh.advertise<PoseDelta>("pose_delta", 10, cb, cb);
-    }
-    if (lazy_)
-      NODELET_INFO("PoseDelta: input (points%s) is subscribed on demand, while pose_delta has subscribers "
-                   "(~lazy:=false to always run, e.g. for tf only)",
-                   use_texture_ ? ", camera/image_raw, camera/camera_info" : "");
-    connectCb();
+    srv_lock_ = nh.advertiseService("pose_delta/lock", &PoseDeltaNodelet::lockCb, this);
+    pub_pose_ = advertise<PoseDelta>(nh, "pose_delta", 10);
+    startSubscriptions(std::string("input (points") + (use_texture_ ? ", camera/image_raw, camera/camera_info" : "") +
+                       ") is subscribed on demand, while pose_delta has subscribers (~lazy:=false to always run, "
+                       "e.g. for tf only)");
     NODELET_INFO("PoseDelta: %s; reference %s", auto_lock_ ? "auto_lock" : "no auto_lock",
                  auto_lock_ ? "= first valid map" : "locked by the pose_delta/lock service");
   }
 
-  // Subscribes the inputs while someone listens (or always without ~lazy);
-  // the image inputs only when the texture part is on.
-  void connectCb()
+  // ---- Inputs: points while wanted; the images too when the texture part is on.
+
+  void subscribe() override
   {
-    std::lock_guard<std::mutex> lock(connect_mutex_);
-    ros::NodeHandle& nh = getNodeHandle();
-    const bool wanted = !lazy_ || pose_pub_.getNumSubscribers() > 0;
+    sub_points_ = getNodeHandle().subscribe("points", 5, &PoseDeltaNodelet::cloudCb, this);
+    points_subscribed_ = true;
+    syncImageSubscription(true);
+  }
+
+  void unsubscribe() override
+  {
+    sub_points_.shutdown();
+    points_subscribed_ = false;
+    syncImageSubscription(false);
+  }
+
+  // Called with connect_mutex_ held.
+  void syncImageSubscription(bool inputs_wanted)
+  {
     bool texture;
     {
-      std::lock_guard<std::mutex> c(config_mutex_);
+      std::lock_guard<std::mutex> lock(params_mutex_);
       texture = use_texture_;
     }
-    if (wanted && !points_sub_)
-      points_sub_ = nh.subscribe("points", 5, &PoseDeltaNodelet::onCloud, this);
-    else if (!wanted && points_sub_)
-      points_sub_.shutdown();
-    points_subscribed_ = wanted;
-    const bool want_images = wanted && texture;
-    if (want_images && !image_sub_)
+    const bool want_images = inputs_wanted && texture;
+    if (want_images && !sub_image_)
     {
       image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
-      image_sub_ = it_->subscribe("camera/image_raw", 5, &PoseDeltaNodelet::onImage, this, hints);
-      info_sub_ = nh.subscribe("camera/camera_info", 5, &PoseDeltaNodelet::onInfo, this);
+      sub_image_ = it_->subscribe("camera/image_raw", 5, &PoseDeltaNodelet::imageCb, this, hints);
+      sub_info_ = getNodeHandle().subscribe("camera/camera_info", 5, &PoseDeltaNodelet::infoCb, this);
       images_subscribed_ = true;
     }
-    else if (!want_images && image_sub_)
+    else if (!want_images && sub_image_)
     {
       images_subscribed_ = false;
-      image_sub_.shutdown();
-      info_sub_.shutdown();
-      std::lock_guard<std::mutex> b(buffer_mutex_);
-      images_.clear();
+      sub_image_.shutdown();
+      sub_info_.shutdown();
+      std::lock_guard<std::mutex> lock(buffer_mutex_);
+      matcher_.clearImages();
     }
   }
 
-  void onReconfigure(PoseDeltaConfig& config, uint32_t /*level*/)
+  // ---- Parameters
+
+  void configCb(Config& config, uint32_t /*level*/)
+  {
+    sanitize(config);
+    if (config.mode != "frame_to_frame" && config.mode != "reference")
+    {
+      // The last good value stays in force (reference before any).
+      std::lock_guard<std::mutex> lock(params_mutex_);
+      const char* kept = params_.mode == PoseDeltaMode::kFrameToFrame ? "frame_to_frame" : "reference";
+      NODELET_WARN("PoseDelta: unknown mode '%s' (reference | frame_to_frame); keeping %s", config.mode.c_str(), kept);
+      config.mode = kept;
+    }
+    const PoseDeltaParams params = paramsFromConfig(config);
+    const std::string why = params.validate();
+    if (!why.empty())
+    {
+      NODELET_ERROR("PoseDelta: rejected parameters (%s); keeping the previous ones", why.c_str());
+      return;
+    }
+    bool texture_changed;
+    {
+      std::lock_guard<std::mutex> lock(params_mutex_);
+      texture_changed = use_texture_ != config.use_texture;
+      params_ = params;
+      params_changed_ = true;
+      use_texture_ = config.use_texture;
+    }
+    if (texture_changed && pub_pose_)
+    {
+      std::lock_guard<std::mutex> lock(connect_mutex_);
+      syncImageSubscription(subscribed_);
+    }
+  }
+
+  // Odd windows, min <= max: fixed in the config, with a warning.
+  void sanitize(Config& config)
   {
     if (config.texture_window_px % 2 == 0)
     {
@@ -168,59 +254,9 @@ private:
                    config.texture_min_features, config.texture_max_features, config.texture_max_features);
       config.texture_min_features = config.texture_max_features;
     }
-    PoseDeltaParams core;
-    if (config.mode != "frame_to_frame" && config.mode != "reference")
-    {
-      // The last good value stays in force (reference before any).
-      std::lock_guard<std::mutex> lock(config_mutex_);
-      const char* kept = config_.mode == PoseDeltaMode::kFrameToFrame ? "frame_to_frame" : "reference";
-      NODELET_WARN("PoseDelta: unknown mode '%s' (reference | frame_to_frame); keeping %s", config.mode.c_str(), kept);
-      config.mode = kept;
-    }
-    core.mode = config.mode == "frame_to_frame" ? PoseDeltaMode::kFrameToFrame : PoseDeltaMode::kReference;
-    core.use_texture = config.use_texture;
-    core.symmetric = config.symmetric;
-    core.min_points = config.min_points;
-    core.max_iterations = config.max_iterations;
-    core.huber_k = config.huber_k;
-    core.min_geometry_sigma_m = config.min_geometry_sigma_m;
-    core.min_texture_sigma_px = config.min_texture_sigma_px;
-    core.freeze_factor = config.freeze_factor;
-    core.max_edge_ratio = config.max_edge_ratio;
-    core.max_sigma_translation_m = config.max_sigma_translation_m;
-    core.max_sigma_rotation_rad = config.max_sigma_rotation_deg * M_PI / 180.0;
-    core.max_rms_residual_m = config.max_rms_residual_m;
-    core.texture_max_features = config.texture_max_features;
-    core.texture_min_features = config.texture_min_features;
-    core.texture_min_distance_px = config.texture_min_distance_px;
-    core.texture_whole_image = config.texture_whole_image;
-    core.texture_window_px = config.texture_window_px;
-    core.texture_refinement_window_px = config.texture_refinement_window_px;
-    core.texture_depth_sigma_m = config.texture_depth_sigma_m;
-    core.texture_extrapolated_depth_sigma_m = config.texture_extrapolated_depth_sigma_m;
-    core.texture_error_inflation = config.texture_error_inflation;
-    core.texture_pyramid_levels = config.texture_pyramid_levels;
-    core.texture_dot_clearance_px = config.texture_dot_clearance_px;
-    core.texture_roi_margin_px = config.texture_roi_margin_px;
-    const std::string why = core.validate();
-    if (!why.empty())
-    {
-      NODELET_ERROR("PoseDelta: rejected parameters (%s); keeping the previous ones", why.c_str());
-      return;
-    }
-    bool texture_changed;
-    {
-      std::lock_guard<std::mutex> lock(config_mutex_);
-      texture_changed = use_texture_ != config.use_texture;
-      config_ = core;
-      config_changed_ = true;
-      use_texture_ = config.use_texture;
-    }
-    if (texture_changed && pose_pub_)
-      connectCb();
   }
 
-  bool onLock(std_srvs::Trigger::Request& /*req*/, std_srvs::Trigger::Response& res)
+  bool lockCb(std_srvs::Trigger::Request& /*req*/, std_srvs::Trigger::Response& res)
   {
     std::lock_guard<std::mutex> lock(buffer_mutex_);
     if (!map_received_)
@@ -237,128 +273,74 @@ private:
     return true;
   }
 
-  void onInfo(const sensor_msgs::CameraInfoConstPtr& info)
+  // ---- Frames: clouds matched with their images by stamp.
+
+  void infoCb(const sensor_msgs::CameraInfoConstPtr& info)
   {
     std::lock_guard<std::mutex> lock(buffer_mutex_);
     latest_info_ = info;
   }
 
-  void onImage(const sensor_msgs::ImageConstPtr& image)
+  void imageCb(const sensor_msgs::ImageConstPtr& image)
   {
     std::lock_guard<std::mutex> lock(buffer_mutex_);
-    images_.push_back(image);
-    while (static_cast<int>(images_.size()) > image_queue_size_)
-      images_.pop_front();
-    // Clouds waiting for this image, or for an image that will never come
-    // (per-topic delivery is in order, so an older unmatched stamp is lost).
-    while (!pending_.empty())
-    {
-      const sensor_msgs::PointCloud2ConstPtr cloud = pending_.front();
-      if (cloud->header.stamp > image->header.stamp)
-        break;
-      pending_.pop_front();
-      process(cloud, cloud->header.stamp == image->header.stamp ? image : nullptr);
-    }
+    matcher_.addImage(image, handle_frame_);
   }
 
-  void onCloud(const sensor_msgs::PointCloud2ConstPtr& cloud)
+  void cloudCb(const sensor_msgs::PointCloud2ConstPtr& cloud)
   {
     std::lock_guard<std::mutex> lock(buffer_mutex_);
     bool texture;
     {
-      std::lock_guard<std::mutex> c(config_mutex_);
+      std::lock_guard<std::mutex> c(params_mutex_);
       texture = use_texture_;
     }
-    // Images stopped (or never came): do not hold clouds back for long.
-    while (!pending_.empty() && (cloud->header.stamp - pending_.front()->header.stamp).toSec() > 0.5)
-    {
-      process(pending_.front(), nullptr);
-      pending_.pop_front();
-    }
-    if (!texture || !images_subscribed_)
-    {
-      process(cloud, nullptr);
-      return;
-    }
-    for (auto it = images_.rbegin(); it != images_.rend(); ++it)
-    {
-      if ((*it)->header.stamp == cloud->header.stamp)
-      {
-        process(cloud, *it);
-        return;
-      }
-    }
-    if (!images_.empty() && images_.back()->header.stamp > cloud->header.stamp)
-    {
-      process(cloud, nullptr);  // its image was dropped upstream
-      return;
-    }
-    pending_.push_back(cloud);
-    while (pending_.size() > 3)
-    {
-      process(pending_.front(), nullptr);
-      pending_.pop_front();
-    }
+    matcher_.addCloud(cloud, texture && images_subscribed_, handle_frame_);
   }
 
   // Called with buffer_mutex_ held: one frame at a time, in order.
+  void handleFrame(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
+  {
+    guarded([&] { process(cloud, image); });
+  }
+
   void process(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
   {
     const ros::WallTime start = ros::WallTime::now();
-    const std::string frame_id = !camera_frame_param_.empty() ? camera_frame_param_ :
-                                 !cloud->header.frame_id.empty() ? cloud->header.frame_id :
-                                                                   std::string("camera_optical_frame");
     PoseDeltaPtr msg(new PoseDelta);
     msg->header.stamp = cloud->header.stamp;
-    msg->header.frame_id = frame_id;
-    try
+    msg->header.frame_id = !camera_frame_param_.empty()      ? camera_frame_param_
+                           : !cloud->header.frame_id.empty() ? cloud->header.frame_id
+                                                             : std::string("camera_optical_frame");
     {
+      std::lock_guard<std::mutex> lock(params_mutex_);
+      if (params_changed_)
       {
-        std::lock_guard<std::mutex> c(config_mutex_);
-        if (config_changed_)
-        {
-          estimator_.setParams(config_);
-          config_changed_ = false;
-        }
+        estimator_.setParams(params_);
+        params_changed_ = false;
       }
-      PoseDeltaInput input;
-      std::string error;
-      if (!readBeamCloud(*cloud, &input.rows, &input.cols, &input.points, nullptr, &error))
-      {
-        NODELET_ERROR_THROTTLE(5.0, "PoseDelta: dropping a points cloud: %s", error.c_str());
-        fillInvalid(msg.get(), "bad points cloud: " + error);
-        publish(msg, start, false);
-        return;
-      }
-      for (const Eigen::Vector3d& p : input.points)
-      {
-        if (p.allFinite())
-        {
-          map_received_ = true;
-          break;
-        }
-      }
-      if (image && estimator_.params().use_texture)
-        prepareImage(image, &input);
-      const PoseDeltaResult r = estimator_.process(input);
-      if (r.locked_now)
-        NODELET_INFO("PoseDelta: reference locked at %.3f (%d points)", cloud->header.stamp.toSec(), r.points_used);
-      msg->transform = transformFromIsometry(r.transform);
-      for (int i = 0; i < 36; ++i)
-        msg->covariance[i] = r.covariance(i / 6, i % 6);
-      msg->rms_residual = r.rms_residual_m;
-      msg->points_used = static_cast<uint32_t>(std::max(0, r.points_used));
-      msg->valid = r.valid;
-      msg->status = r.status;
-      last_features_ = r.features_used;
-      if (!r.valid)
-        NODELET_WARN_THROTTLE(10.0, "PoseDelta: not valid: %s", r.status.c_str());
-      publish(msg, start, estimator_.hasReference());
     }
-    catch (const std::exception& e)
+    PoseDeltaInput input;
+    std::string error;
+    if (!readBeamCloud(*cloud, &input.rows, &input.cols, &input.points, nullptr, &error))
     {
-      NODELET_ERROR_THROTTLE(5.0, "PoseDelta: frame dropped: %s", e.what());
+      dropFrame("dropping a points cloud: " + error);
+      fillInvalid(msg.get(), "bad points cloud: " + error);
+      publish(msg, start, false);
+      return;
     }
+    map_received_ = map_received_ || std::any_of(input.points.begin(), input.points.end(),
+                                                 [](const Eigen::Vector3d& p) { return p.allFinite(); });
+    if (image && estimator_.params().use_texture)
+      prepareImage(image, &input);
+    const PoseDeltaResult r = estimator_.process(input);
+    if (r.locked_now)
+      NODELET_INFO("PoseDelta: reference locked at %.3f (%d points)", cloud->header.stamp.toSec(), r.points_used);
+    fillFromResult(r, msg.get());
+    last_features_ = r.features_used;
+    if (!r.valid)
+      NODELET_WARN_THROTTLE(10.0, "PoseDelta: not valid: %s", r.status.c_str());
+    publish(msg, start, estimator_.hasReference());
   }
 
   // Picks the image channel with the rock's texture and the least dot light.
@@ -389,19 +371,7 @@ private:
         input->texture_channel = 2;
       }
       if (latest_info_)
-      {
-        CameraModel model;
-        std::string error;
-        if (cameraModelFromInfo(*latest_info_, &model, &error))
-        {
-          if (model.width != input->image.cols || model.height != input->image.rows)
-            NODELET_WARN_THROTTLE(10.0, "PoseDelta: camera_info is %dx%d but the image %dx%d; texture unused",
-                                  model.width, model.height, input->image.cols, input->image.rows);
-          estimator_.setCamera(model);
-        }
-        else
-          NODELET_WARN_THROTTLE(10.0, "PoseDelta: camera_info unusable for the texture: %s", error.c_str());
-      }
+        useCameraInfo(*latest_info_, input->image);
     }
     catch (const cv_bridge::Exception& ex)
     {
@@ -410,12 +380,19 @@ private:
     }
   }
 
-  void fillInvalid(PoseDelta* msg, const std::string& status)
+  void useCameraInfo(const sensor_msgs::CameraInfo& info, const cv::Mat& image)
   {
-    msg->transform.rotation.w = 1.0;
-    msg->valid = false;
-    msg->status = status;
-    msg->points_used = 0;
+    CameraModel model;
+    std::string error;
+    if (!cameraModelFromInfo(info, &model, &error))
+    {
+      NODELET_WARN_THROTTLE(10.0, "PoseDelta: camera_info unusable for the texture: %s", error.c_str());
+      return;
+    }
+    if (model.width != image.cols || model.height != image.rows)
+      NODELET_WARN_THROTTLE(10.0, "PoseDelta: camera_info is %dx%d but the image %dx%d; texture unused", model.width,
+                            model.height, image.cols, image.rows);
+    estimator_.setCamera(model);
   }
 
   void publish(const PoseDeltaPtr& msg, const ros::WallTime& start, bool broadcast_tf)
@@ -439,8 +416,8 @@ private:
       tf_broadcaster_.sendTransform(tf);
       last_tf_stamp_ = msg->header.stamp;
     }
-    pose_diag_->tick(msg->header.stamp);
-    pose_pub_.publish(msg);
+    pose_diagnostic_->tick(msg->header.stamp);
+    pub_pose_.publish(msg);
   }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
@@ -466,35 +443,37 @@ private:
   }
 
   // Parameters fixed at start-up.
-  bool lazy_ = true;
   bool auto_lock_ = true;
   std::string camera_frame_param_;
   int image_queue_size_ = 5;
-  double min_rate_ = 1.0, max_rate_ = 200.0;
 
-  // Live parameters (dynamic_reconfigure), copied under config_mutex_.
-  boost::recursive_mutex reconfigure_mutex_;
-  std::unique_ptr<ReconfigureServer> reconfigure_server_;
-  std::mutex config_mutex_;
-  PoseDeltaParams config_;
-  bool config_changed_ = false;
+  // dynamic_reconfigure: the server holds config_mutex_ while calling
+  // configCb(); the accepted parameters are handed to the frame callbacks
+  // under params_mutex_ (not config_mutex_: configCb() takes connect_mutex_
+  // and buffer_mutex_, which the frame callbacks hold).
+  boost::recursive_mutex config_mutex_;
+  std::unique_ptr<dynamic_reconfigure::Server<Config>> reconfigure_server_;
+  std::mutex params_mutex_;
+  PoseDeltaParams params_;
+  bool params_changed_ = false;
   bool use_texture_ = true;
 
-  std::mutex connect_mutex_;
-  ros::Publisher pose_pub_;
-  ros::Subscriber points_sub_;
-  ros::Subscriber info_sub_;
+  ros::Publisher pub_pose_;
+  ros::Subscriber sub_points_;
+  ros::Subscriber sub_info_;
   std::unique_ptr<image_transport::ImageTransport> it_;
-  image_transport::Subscriber image_sub_;
+  image_transport::Subscriber sub_image_;
   std::atomic<bool> images_subscribed_{false};
   std::atomic<bool> points_subscribed_{false};
-  ros::ServiceServer lock_service_;
+  ros::ServiceServer srv_lock_;
   tf2_ros::TransformBroadcaster tf_broadcaster_;
 
   // Frame state, guarded by buffer_mutex_.
   std::mutex buffer_mutex_;
-  std::deque<sensor_msgs::ImageConstPtr> images_;
-  std::deque<sensor_msgs::PointCloud2ConstPtr> pending_;
+  CloudImageMatcher matcher_;
+  const CloudImageMatcher::Emit handle_frame_ =
+      [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
+  { handleFrame(cloud, image); };
   sensor_msgs::CameraInfoConstPtr latest_info_;
   PoseDeltaEstimator estimator_;
   bool map_received_ = false;
@@ -502,10 +481,8 @@ private:
   bool warned_mono_ = false;
   bool warned_encoding_ = false;
 
-  // Diagnostics.
-  std::unique_ptr<diagnostic_updater::Updater> updater_;
-  std::unique_ptr<diagnostic_updater::TopicDiagnostic> pose_diag_;
-  ros::Timer diagnostics_timer_;
+  // Diagnostics (under buffer_mutex_).
+  std::unique_ptr<diagnostic_updater::TopicDiagnostic> pose_diagnostic_;
   std::string last_status_ = "no frame yet";
   bool last_valid_ = false;
   double last_residual_ = 0.0;

@@ -1,18 +1,14 @@
 // SpotDetector nodelet: camera/image_raw -> spots (CentroidArray) and, only
 // while someone listens, spots/debug_image. All the detection is in the core
 // (spot_detector.h); this file subscribes, converts, calls and publishes.
-#include <atomic>
 #include <memory>
 #include <mutex>
 #include <string>
 
 #include <boost/thread/recursive_mutex.hpp>
 #include <cv_bridge/cv_bridge.h>
-#include <diagnostic_updater/diagnostic_updater.h>
-#include <diagnostic_updater/update_functions.h>
 #include <dynamic_reconfigure/server.h>
 #include <image_transport/image_transport.h>
-#include <nodelet/nodelet.h>
 #include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
@@ -20,36 +16,146 @@
 
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/SpotDetectorConfig.h"
-#include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/spot_detector.h"
-#include "drop_log.h"
+#include "conversions.h"
+#include "nodelet_base.h"
 
 namespace structured_light_stabilizer
 {
 
-class SpotDetectorNodelet : public nodelet::Nodelet
+namespace
+{
+
+using Config = structured_light_stabilizer::SpotDetectorConfig;
+
+// ---- The core interface: dynamic_reconfigure <-> SpotDetectorParams, one
+// function each way (the names of cfg/SpotDetector.cfg are the core's).
+
+// config.method must be valid (spotMethodFromName).
+SpotDetectorParams paramsFromConfig(const Config& config)
+{
+  SpotDetectorParams p;
+  spotMethodFromName(config.method, &p.method);
+  BaselineParams& b = p.baseline;  // the study's chain
+  b.blur_kernel = config.blur_kernel;
+  b.h_min = config.h_min;
+  b.h_max = config.h_max;
+  b.s_min = config.s_min;
+  b.s_max = config.s_max;
+  b.v_min = config.v_min;
+  b.v_max = config.v_max;
+  b.erosions = config.erosions;
+  b.dilations = config.dilations;
+  b.min_area = config.min_area;
+  b.max_area = config.max_area;
+  b.baseline_weight = config.baseline_weight == 1 ? BaselineWeight::kValue : BaselineWeight::kSaturation;
+  FastParams& f = p.fast;  // the fast detector
+  f.red_weight = config.red_weight;
+  f.detect_threshold = config.detect_threshold;
+  f.min_peak = config.min_peak;
+  f.mono_threshold = config.mono_threshold;
+  f.min_pixels = config.min_pixels;
+  f.coarse_threshold = config.coarse_threshold;
+  f.window_radius_px = config.window_radius_px;
+  f.subtract_rock_texture = config.subtract_rock_texture;
+  f.min_sigma_px = config.min_sigma_px;
+  f.max_sigma_px = config.max_sigma_px;
+  f.colour_test.led_red_ratio = config.led_red_ratio;
+  f.colour_test.led_blue_ratio = config.led_blue_ratio;
+  f.colour_test.max_red_excess = config.max_red_excess;
+  f.colour_test.max_red_deficit = config.max_red_deficit;
+  f.colour_test.max_chroma_error = config.max_chroma_error;
+  f.saturation_level = config.saturation_level;
+  FrameCheckParams& fc = f.frame_checks;  // the fast detector's frame-level tests
+  fc.min_sigma_fraction = config.min_sigma_fraction;
+  fc.max_sigma_factor = config.max_sigma_factor;
+  fc.max_contrast_factor = config.max_contrast_factor;
+  fc.min_energy_fraction = config.min_energy_fraction;
+  fc.size_band_low = config.size_band_low;
+  fc.size_band_high = config.size_band_high;
+  fc.energy_band_low = config.energy_band_low;
+  fc.energy_band_high = config.energy_band_high;
+  fc.consistency_min_spots = config.consistency_min_spots;
+  return p;
+}
+
+void configFromParams(const SpotDetectorParams& p, Config* config)
+{
+  config->method = spotMethodName(p.method);
+  const BaselineParams& b = p.baseline;
+  config->blur_kernel = b.blur_kernel;
+  config->h_min = b.h_min;
+  config->h_max = b.h_max;
+  config->s_min = b.s_min;
+  config->s_max = b.s_max;
+  config->v_min = b.v_min;
+  config->v_max = b.v_max;
+  config->erosions = b.erosions;
+  config->dilations = b.dilations;
+  config->min_area = b.min_area;
+  config->max_area = b.max_area;
+  config->baseline_weight = b.baseline_weight == BaselineWeight::kValue ? 1 : 0;
+  const FastParams& f = p.fast;
+  config->red_weight = f.red_weight;
+  config->detect_threshold = f.detect_threshold;
+  config->min_peak = f.min_peak;
+  config->mono_threshold = f.mono_threshold;
+  config->min_pixels = f.min_pixels;
+  config->coarse_threshold = f.coarse_threshold;
+  config->window_radius_px = f.window_radius_px;
+  config->subtract_rock_texture = f.subtract_rock_texture;
+  config->min_sigma_px = f.min_sigma_px;
+  config->max_sigma_px = f.max_sigma_px;
+  config->led_red_ratio = f.colour_test.led_red_ratio;
+  config->led_blue_ratio = f.colour_test.led_blue_ratio;
+  config->max_red_excess = f.colour_test.max_red_excess;
+  config->max_red_deficit = f.colour_test.max_red_deficit;
+  config->max_chroma_error = f.colour_test.max_chroma_error;
+  config->saturation_level = f.saturation_level;
+  const FrameCheckParams& fc = f.frame_checks;
+  config->min_sigma_fraction = fc.min_sigma_fraction;
+  config->max_sigma_factor = fc.max_sigma_factor;
+  config->max_contrast_factor = fc.max_contrast_factor;
+  config->min_energy_fraction = fc.min_energy_fraction;
+  config->size_band_low = fc.size_band_low;
+  config->size_band_high = fc.size_band_high;
+  config->energy_band_low = fc.energy_band_low;
+  config->energy_band_high = fc.energy_band_high;
+  config->consistency_min_spots = fc.consistency_min_spots;
+}
+
+// Why an image message cannot be read as `format` (empty when it can):
+// style weak spot 2, refuse with a clear message instead of an OpenCV abort.
+std::string inconsistency(const sensor_msgs::Image& msg, PixelFormat format)
+{
+  const size_t row_bytes = static_cast<size_t>(msg.width) * channelCount(format);
+  const std::string what = std::to_string(msg.width) + "x" + std::to_string(msg.height) + " " + msg.encoding;
+  if (msg.width == 0 || msg.height == 0)
+    return "inconsistent image (" + what + "): empty; frame dropped";
+  if (msg.step < row_bytes)
+    return "inconsistent image (" + what + "): step " + std::to_string(msg.step) + " < width * channels " +
+           std::to_string(row_bytes) + "; frame dropped";
+  const size_t needed = static_cast<size_t>(msg.step) * (msg.height - 1) + row_bytes;
+  if (msg.data.size() < needed)
+    return "inconsistent image (" + what + ", step " + std::to_string(msg.step) + "): truncated, " +
+           std::to_string(msg.data.size()) + " data bytes of the " + std::to_string(needed) + " needed; frame dropped";
+  return "";
+}
+
+}  // namespace
+
+class SpotDetectorNodelet : public NodeletBase
 {
 public:
-  ~SpotDetectorNodelet() override
-  {
-    // Stop callbacks before the members they use go away, then tear down in
-    // dependency order (the updater refers to freq_, the server to
-    // config_mutex_).
-    diag_timer_.stop();
-    image_sub_.shutdown();
-    updater_.reset();
-    freq_.reset();
-    reconfigure_.reset();
-  }
+  SpotDetectorNodelet() : NodeletBase("SpotDetector") {}
+  ~SpotDetectorNodelet() override { stopCallbacks(); }
 
 private:
-  using Config = structured_light_stabilizer::SpotDetectorConfig;
-
   void onInit() override
   {
     ros::NodeHandle& nh = getNodeHandle();
     ros::NodeHandle& pnh = getPrivateNodeHandle();
-    pnh.param("lazy", lazy_, true);
+    readLazyParam();
     pnh.param("projector_rows", projector_rows_, 10);
     pnh.param("projector_cols", projector_cols_, 10);
     if (projector_rows_ < 1 || projector_cols_ < 1)
@@ -58,122 +164,48 @@ private:
                    projector_cols_);
       projector_rows_ = projector_cols_ = 10;
     }
-
     it_.reset(new image_transport::ImageTransport(nh));
 
-    updater_.reset(new diagnostic_updater::Updater(nh, pnh, getName()));
-    updater_->setHardwareID("structured_light_stabilizer/SpotDetector");
-    freq_.reset(new diagnostic_updater::FrequencyStatus(
-        diagnostic_updater::FrequencyStatusParam(&freq_min_, &freq_max_, 0.1, 10)));
-    updater_->add(*freq_);
-    updater_->add("detector", this, &SpotDetectorNodelet::diagnose);
-    diag_timer_ = nh.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { updater_->update(); });
+    setUpDiagnostics("structured_light_stabilizer/SpotDetector");
+    addFrequencyStatus();
+    diagnostics_->add("detector", this, &SpotDetectorNodelet::diagnose);
+    startDiagnostics(1.0);
 
-    reconfigure_.reset(new dynamic_reconfigure::Server<Config>(config_mutex_, pnh));
-    reconfigure_->setCallback([this](Config& config, uint32_t level) { reconfigure(config, level); });
+    reconfigure_server_.reset(new dynamic_reconfigure::Server<Config>(config_mutex_, pnh));
+    reconfigure_server_->setCallback([this](Config& config, uint32_t level) { configCb(config, level); });
 
-    // Advertise under the lock: a connect callback may fire at once.
-    std::lock_guard<std::mutex> lock(connect_mutex_);
-    auto connect = [this](const ros::SingleSubscriberPublisher&) { connectCb(); };
-    auto image_connect = [this](const image_transport::SingleSubscriberPublisher&) { connectCb(); };
-    spots_pub_ = nh.advertise<CentroidArray>("spots", 10, connect, connect);
-    debug_pub_ = it_->advertise("spots/debug_image", 1, image_connect, image_connect);
-    if (lazy_)
-      NODELET_INFO("SpotDetector: camera/image_raw is subscribed on demand (~lazy = true): only while spots or "
-                   "spots/debug_image has a subscriber");
-    else
-      subscribe();
+    pub_spots_ = advertise<CentroidArray>(nh, "spots", 10);
+    pub_debug_ = advertiseImage(*it_, "spots/debug_image", 1);
+    startSubscriptions(
+        "camera/image_raw is subscribed on demand (~lazy = true): only while spots or "
+        "spots/debug_image has a subscriber");
   }
 
-  void connectCb()
-  {
-    std::lock_guard<std::mutex> lock(connect_mutex_);
-    if (!lazy_)
-      return;
-    const bool wanted = spots_pub_.getNumSubscribers() > 0 || debug_pub_.getNumSubscribers() > 0;
-    if (!wanted && image_sub_)
-      image_sub_.shutdown();
-    else if (wanted && !image_sub_)
-      subscribe();
-  }
-
-  void subscribe()
+  void subscribe() override
   {
     const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
-    image_sub_ = it_->subscribe("camera/image_raw", 1, &SpotDetectorNodelet::imageCb, this, hints);
+    sub_image_ = it_->subscribe("camera/image_raw", 1, &SpotDetectorNodelet::imageCb, this, hints);
   }
 
-  void reconfigure(Config& config, uint32_t /*level*/)
+  void unsubscribe() override { sub_image_.shutdown(); }
+
+  void configCb(Config& config, uint32_t /*level*/)
   {
     // Runs with config_mutex_ held by the server: validate and copy only.
-    SpotDetectorParams p;
-    if (!spotMethodFromName(config.method, &p.method))
+    SpotMethod method;
+    if (!spotMethodFromName(config.method, &method))
     {
       // The last good value stays in force (the default before any).
-      p.method = params_.method;
-      const char* kept = spotMethodName(p.method);
-      NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(), kept);
-      config.method = kept;
+      NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(),
+                   spotMethodName(params_.method));
+      config.method = spotMethodName(params_.method);
     }
-    BaselineParams& b = p.baseline;
-    b.blur_kernel = config.blur_kernel;
-    b.h_min = config.h_min;
-    b.h_max = config.h_max;
-    b.s_min = config.s_min;
-    b.s_max = config.s_max;
-    b.v_min = config.v_min;
-    b.v_max = config.v_max;
-    b.erosions = config.erosions;
-    b.dilations = config.dilations;
-    b.min_area = config.min_area;
-    b.max_area = config.max_area;
-    b.baseline_weight = config.baseline_weight == 1 ? BaselineWeight::kValue : BaselineWeight::kSaturation;
+    SpotDetectorParams p = paramsFromConfig(config);
     p.projector_rows = projector_rows_;
     p.projector_cols = projector_cols_;
-    FastParams& f = p.fast;
-    f.red_weight = config.red_weight;
-    f.detect_threshold = config.detect_threshold;
-    f.min_peak = config.min_peak;
-    f.mono_threshold = config.mono_threshold;
-    f.min_pixels = config.min_pixels;
-    f.coarse_threshold = config.coarse_threshold;
-    f.window_radius_px = config.window_radius_px;
-    f.subtract_rock_texture = config.subtract_rock_texture;
-    f.min_sigma_px = config.min_sigma_px;
-    f.max_sigma_px = config.max_sigma_px;
-    f.colour_test.led_red_ratio = config.led_red_ratio;
-    f.colour_test.led_blue_ratio = config.led_blue_ratio;
-    f.colour_test.max_red_excess = config.max_red_excess;
-    f.colour_test.max_red_deficit = config.max_red_deficit;
-    f.colour_test.max_chroma_error = config.max_chroma_error;
-    f.saturation_level = config.saturation_level;
-    FrameCheckParams& fc = f.frame_checks;
-    fc.min_sigma_fraction = config.min_sigma_fraction;
-    fc.max_sigma_factor = config.max_sigma_factor;
-    fc.max_contrast_factor = config.max_contrast_factor;
-    fc.min_energy_fraction = config.min_energy_fraction;
-    fc.size_band_low = config.size_band_low;
-    fc.size_band_high = config.size_band_high;
-    fc.energy_band_low = config.energy_band_low;
-    fc.energy_band_high = config.energy_band_high;
-    fc.consistency_min_spots = config.consistency_min_spots;
     for (const std::string& change : p.sanitize())
       NODELET_WARN("SpotDetector: %s", change.c_str());
-    // Show the values actually used in rqt_reconfigure.
-    config.blur_kernel = b.blur_kernel;
-    config.h_min = b.h_min;
-    config.h_max = b.h_max;
-    config.s_min = b.s_min;
-    config.s_max = b.s_max;
-    config.v_min = b.v_min;
-    config.v_max = b.v_max;
-    config.min_area = b.min_area;
-    config.max_area = b.max_area;
-    config.min_sigma_px = f.min_sigma_px;
-    config.max_sigma_px = f.max_sigma_px;
-    config.max_sigma_factor = fc.max_sigma_factor;
-    config.size_band_high = fc.size_band_high;
-    config.energy_band_high = fc.energy_band_high;
+    configFromParams(p, &config);  // rqt_reconfigure shows the values actually used
     params_ = p;
     enabled_ = config.enabled;
     params_changed_ = true;
@@ -181,16 +213,7 @@ private:
 
   void imageCb(const sensor_msgs::ImageConstPtr& msg)
   {
-    try
-    {
-      process(msg);
-    }
-    catch (const std::exception& e)
-    {
-      // cv::Exception and cv_bridge::Exception included: a bad frame must not
-      // take the manager down.
-      dropFrame(std::string("frame dropped: ") + e.what());
-    }
+    guarded([&] { process(msg); });
   }
 
   void process(const sensor_msgs::ImageConstPtr& msg)
@@ -207,7 +230,6 @@ private:
     }
     if (!enabled)
       return;
-
     PixelFormat format;
     if (!pixelFormatFromEncoding(msg->encoding, &format))
     {
@@ -218,35 +240,21 @@ private:
     if (format == PixelFormat::kMono8 && !mono_warned_)
     {
       mono_warned_ = true;
-      NODELET_WARN("SpotDetector: mono8 input: no colour, so dots are found by intensity only (green clutter and "
-                   "bright rock are not rejected); use a colour camera for the real thing");
+      NODELET_WARN(
+          "SpotDetector: mono8 input: no colour, so dots are found by intensity only (green clutter and "
+          "bright rock are not rejected); use a colour camera for the real thing");
     }
-    const size_t row_bytes = static_cast<size_t>(msg->width) * channelCount(format);
-    const std::string what = std::to_string(msg->width) + "x" + std::to_string(msg->height) + " " + msg->encoding;
-    if (msg->width == 0 || msg->height == 0)
+    const std::string bad = inconsistency(*msg, format);
+    if (!bad.empty())
     {
-      dropFrame("inconsistent image (" + what + "): empty; frame dropped");
-      return;
-    }
-    if (msg->step < row_bytes)
-    {
-      dropFrame("inconsistent image (" + what + "): step " + std::to_string(msg->step) + " < width * channels " +
-                std::to_string(row_bytes) + "; frame dropped");
-      return;
-    }
-    const size_t needed = static_cast<size_t>(msg->step) * (msg->height - 1) + row_bytes;
-    if (msg->data.size() < needed)
-    {
-      dropFrame("inconsistent image (" + what + ", step " + std::to_string(msg->step) + "): truncated, " +
-                std::to_string(msg->data.size()) + " data bytes of the " + std::to_string(needed) +
-                " needed; frame dropped");
+      dropFrame(bad);
       return;
     }
     // Zero copy: a header over the message's buffer, honouring its step.
     const cv::Mat image(static_cast<int>(msg->height), static_cast<int>(msg->width),
                         CV_MAKETYPE(CV_8U, channelCount(format)), const_cast<uint8_t*>(msg->data.data()), msg->step);
 
-    const bool want_debug = debug_pub_.getNumSubscribers() > 0;
+    const bool want_debug = pub_debug_.getNumSubscribers() > 0;
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
     const SpotDetectionResult result = detector_.detect(image, format, want_debug ? &debug : nullptr, &timings);
@@ -255,44 +263,29 @@ private:
       dropFrame("frame dropped: " + result.error);
       return;
     }
-
-    CentroidArrayPtr out(new CentroidArray);
-    out->header = msg->header;
-    out->image_width = msg->width;
-    out->image_height = msg->height;
-    spotsToMsg(result.spots, out.get());
-    spots_pub_.publish(out);
-    freq_->tick();
-    {
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      last_ms_ = timings.total_ms;
-      mean_ms_ = frames_ == 0 ? timings.total_ms : 0.95 * mean_ms_ + 0.05 * timings.total_ms;
-      last_spots_ = static_cast<int>(result.spots.size());
-      ++frames_;
-    }
-
+    publishSpots(*msg, result.spots, timings.total_ms);
     if (want_debug)
     {
       cv_bridge::CvImage dbg(msg->header, sensor_msgs::image_encodings::BGR8,
                              drawSpotDebugImage(image, format, result.spots, debug));
-      debug_pub_.publish(dbg.toImageMsg());
+      pub_debug_.publish(dbg.toImageMsg());
     }
   }
 
-  // Logs why a frame was dropped: each kind of problem at once, then at most
-  // every 5 s (bad frames, even of alternating kinds, must not flood rosout).
-  void dropFrame(const std::string& why)
+  void publishSpots(const sensor_msgs::Image& image, const Spots& spots, double processing_ms)
   {
-    ++dropped_;
-    int suppressed = 0;
-    if (drop_log_.shouldLog(why, &suppressed))
-    {
-      const std::string note =
-          suppressed > 0 ? " (" + std::to_string(suppressed) + " more like it suppressed)" : "";
-      NODELET_ERROR("SpotDetector: %s%s", why.c_str(), note.c_str());
-    }
+    CentroidArrayPtr out(new CentroidArray);
+    out->header = image.header;
+    out->image_width = image.width;
+    out->image_height = image.height;
+    spotsToMsg(spots, out.get());
+    pub_spots_.publish(out);
+    frequency_->tick();
     std::lock_guard<std::mutex> lock(stats_mutex_);
-    last_error_ = why;
+    last_ms_ = processing_ms;
+    mean_ms_ = frames_ == 0 ? processing_ms : 0.95 * mean_ms_ + 0.05 * processing_ms;
+    last_spots_ = static_cast<int>(spots.size());
+    ++frames_;
   }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
@@ -302,6 +295,7 @@ private:
       boost::recursive_mutex::scoped_lock lock(config_mutex_);
       method = spotMethodName(params_.method);
     }
+    const std::string last_drop = lastDropReason();
     std::lock_guard<std::mutex> lock(stats_mutex_);
     const int expected = projector_rows_ * projector_cols_;
     if (frames_ == 0)
@@ -312,22 +306,21 @@ private:
       stat.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "%d dots found (%d beams)", last_spots_, expected);
     stat.add("method", method);
     stat.add("frames processed", frames_);
-    stat.add("frames dropped (bad input)", dropped_.load());
+    stat.add("frames dropped (bad input)", framesDropped());
     stat.add("dots in last frame", last_spots_);
     stat.add("processing time last frame (ms)", last_ms_);
     stat.add("processing time mean (ms)", mean_ms_);
-    if (!last_error_.empty())
-      stat.add("last drop reason", last_error_);
+    if (!last_drop.empty())
+      stat.add("last drop reason", last_drop);
   }
 
-  // Parameters.
-  bool lazy_ = true;
+  // Parameters fixed at start-up.
   int projector_rows_ = 10, projector_cols_ = 10;
 
   // dynamic_reconfigure: the server holds config_mutex_ while calling
-  // reconfigure(); the frame callback copies params_ under it.
+  // configCb(); the frame callback copies params_ under it.
   boost::recursive_mutex config_mutex_;
-  std::unique_ptr<dynamic_reconfigure::Server<Config>> reconfigure_;
+  std::unique_ptr<dynamic_reconfigure::Server<Config>> reconfigure_server_;
   SpotDetectorParams params_;
   bool enabled_ = true;
   bool params_changed_ = true;
@@ -337,22 +330,14 @@ private:
   bool mono_warned_ = false;
 
   std::unique_ptr<image_transport::ImageTransport> it_;
-  std::mutex connect_mutex_;
-  image_transport::Subscriber image_sub_;
-  ros::Publisher spots_pub_;
-  image_transport::Publisher debug_pub_;
+  image_transport::Subscriber sub_image_;
+  ros::Publisher pub_spots_;
+  image_transport::Publisher pub_debug_;
 
-  // Diagnostics.
-  std::unique_ptr<diagnostic_updater::FrequencyStatus> freq_;
-  std::unique_ptr<diagnostic_updater::Updater> updater_;
-  double freq_min_ = 1.0, freq_max_ = 1000.0;
-  ros::Timer diag_timer_;
+  // Statistics for diagnostics.
   std::mutex stats_mutex_;
   double last_ms_ = 0.0, mean_ms_ = 0.0;
   int last_spots_ = 0, frames_ = 0;
-  std::string last_error_;
-  DropLog drop_log_;
-  std::atomic<int> dropped_{0};
 };
 
 }  // namespace structured_light_stabilizer

@@ -9,10 +9,7 @@
 #include <string>
 
 #include <boost/thread/recursive_mutex.hpp>
-#include <diagnostic_updater/diagnostic_updater.h>
-#include <diagnostic_updater/update_functions.h>
 #include <dynamic_reconfigure/server.h>
-#include <nodelet/nodelet.h>
 #include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -21,59 +18,97 @@
 
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/TriangulatorConfig.h"
-#include "structured_light_stabilizer/beam_tracker.h"
-#include "structured_light_stabilizer/conversions.h"
 #include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/beam_tracker.h"
 #include "structured_light_stabilizer/triangulator.h"
-#include "drop_log.h"
+#include "conversions.h"
+#include "nodelet_base.h"
 
 namespace structured_light_stabilizer
 {
 
-class TriangulatorNodelet : public nodelet::Nodelet
+namespace
+{
+
+using Config = structured_light_stabilizer::TriangulatorConfig;
+
+// ---- The core interface: dynamic_reconfigure -> TriangulatorParams, and
+// what decides whether the cached core object still fits.
+
+TriangulatorParams paramsFromConfig(const Config& c)
+{
+  TriangulatorParams o;
+  o.min_depth = c.min_depth;
+  o.max_depth = c.max_depth;
+  o.max_epipolar_distance_px = c.max_epipolar_distance_px;
+  o.max_ray_gap = c.max_ray_gap;
+  o.ambiguity_margin = c.ambiguity_margin;
+  o.prediction_tolerance_px = c.prediction_tolerance_px;
+  o.tracking_radius_px = c.tracking_radius_px;
+  o.assignment = c.assignment == "sort" ? BeamAssignment::kSort : BeamAssignment::kEpipolar;
+  return o;
+}
+
+bool sameModel(const CameraModel& a, const CameraModel& b)
+{
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx && a.cy == b.cy &&
+         a.distortion == b.distortion && a.D == b.D;
+}
+
+bool sameParams(const TriangulatorParams& a, const TriangulatorParams& b)
+{
+  return a.min_depth == b.min_depth && a.max_depth == b.max_depth &&
+         a.max_epipolar_distance_px == b.max_epipolar_distance_px && a.max_ray_gap == b.max_ray_gap &&
+         a.ambiguity_margin == b.ambiguity_margin && a.prediction_tolerance_px == b.prediction_tolerance_px &&
+         a.tracking_radius_px == b.tracking_radius_px && a.assignment == b.assignment;
+}
+
+}  // namespace
+
+class TriangulatorNodelet : public NodeletBase
 {
 public:
-  ~TriangulatorNodelet() override
-  {
-    if (diag_timer_.isValid())
-      diag_timer_.stop();
-  }
+  TriangulatorNodelet() : NodeletBase("Triangulator") {}
+  ~TriangulatorNodelet() override { stopCallbacks(); }
 
 private:
-  using Config = structured_light_stabilizer::TriangulatorConfig;
-
   void onInit() override
   {
     ros::NodeHandle& nh = getNodeHandle();
     ros::NodeHandle& pnh = getPrivateNodeHandle();
-    pnh.param("lazy", lazy_, true);
+    readLazyParam();
     pnh.param("camera_info_stale_s", info_stale_s_, 1.0);
     pnh.param<std::string>("projector_calibration", calibration_path_, "");
     loadCalibration();
 
     reconfigure_server_ = std::make_shared<dynamic_reconfigure::Server<Config>>(config_mutex_, pnh);
-    reconfigure_server_->setCallback(
-        [this](Config& c, uint32_t level) { reconfigure(c, level); });
+    reconfigure_server_->setCallback([this](Config& c, uint32_t level) { configCb(c, level); });
 
-    diagnostics_ = std::make_unique<diagnostic_updater::Updater>(nh, pnh, getName());
-    diagnostics_->setHardwareID("structured_light_stabilizer/Triangulator");
-    freq_status_ = std::make_shared<diagnostic_updater::FrequencyStatus>(
-        diagnostic_updater::FrequencyStatusParam(&min_freq_, &max_freq_, 0.1, 10));
-    diagnostics_->add(*freq_status_);
+    setUpDiagnostics("structured_light_stabilizer/Triangulator");
+    addFrequencyStatus();
     diagnostics_->add("triangulation", this, &TriangulatorNodelet::diagnose);
-    diag_timer_ = nh.createTimer(ros::Duration(1.0), [this](const ros::TimerEvent&) { diagnostics_->update(); });
+    startDiagnostics(1.0);
 
-    reload_service_ = pnh.advertiseService("reload_calibration", &TriangulatorNodelet::reloadCallback, this);
+    srv_reload_ = pnh.advertiseService("reload_calibration", &TriangulatorNodelet::reloadCb, this);
 
-    std::lock_guard<std::mutex> lock(connect_mutex_);
-    const ros::SubscriberStatusCallback cb = [this](const ros::SingleSubscriberPublisher&) { connectCallback(); };
-    points_pub_ = nh.advertise<sensor_msgs::PointCloud2>("points", 1, cb, cb);
-    assigned_pub_ = nh.advertise<CentroidArray>("spots/assigned", 1, cb, cb);
-    if (lazy_)
-      NODELET_INFO("Triangulator: input (spots, camera/camera_info) is subscribed on demand, when points or "
-                   "spots/assigned has a subscriber (~lazy:=false to subscribe at start-up)");
-    else
-      subscribe();
+    pub_points_ = advertise<sensor_msgs::PointCloud2>(nh, "points", 1);
+    pub_assigned_ = advertise<CentroidArray>(nh, "spots/assigned", 1);
+    startSubscriptions(
+        "input (spots, camera/camera_info) is subscribed on demand, when points or spots/assigned "
+        "has a subscriber (~lazy:=false to subscribe at start-up)");
+  }
+
+  void subscribe() override
+  {
+    ros::NodeHandle& nh = getNodeHandle();
+    sub_info_ = nh.subscribe("camera/camera_info", 1, &TriangulatorNodelet::infoCb, this);
+    sub_spots_ = nh.subscribe("spots", 1, &TriangulatorNodelet::spotsCb, this);
+  }
+
+  void unsubscribe() override
+  {
+    sub_spots_.shutdown();
+    sub_info_.shutdown();
   }
 
   void loadCalibration()
@@ -100,10 +135,9 @@ private:
                  cal.cols);
   }
 
-  bool reloadCallback(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res)
+  bool reloadCb(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res)
   {
-    ros::NodeHandle& pnh = getPrivateNodeHandle();
-    pnh.param<std::string>("projector_calibration", calibration_path_, calibration_path_);
+    getPrivateNodeHandle().param<std::string>("projector_calibration", calibration_path_, calibration_path_);
     loadCalibration();
     std::lock_guard<std::mutex> lock(state_mutex_);
     res.success = calibration_error_.empty();
@@ -111,7 +145,7 @@ private:
     return true;
   }
 
-  void reconfigure(Config& c, uint32_t /*level*/)
+  void configCb(Config& c, uint32_t /*level*/)
   {
     // Validate here; the frame callback copies the accepted config.
     if (c.min_depth >= c.max_depth)
@@ -132,70 +166,15 @@ private:
     config_ = c;
   }
 
-  void connectCallback()
-  {
-    std::lock_guard<std::mutex> lock(connect_mutex_);
-    const bool wanted = points_pub_.getNumSubscribers() > 0 || assigned_pub_.getNumSubscribers() > 0;
-    if (wanted && !spots_sub_)
-      subscribe();
-    else if (!wanted && lazy_ && spots_sub_)
-    {
-      spots_sub_.shutdown();
-      info_sub_.shutdown();
-    }
-  }
-
-  void subscribe()
-  {
-    ros::NodeHandle& nh = getNodeHandle();
-    info_sub_ = nh.subscribe("camera/camera_info", 1, &TriangulatorNodelet::infoCallback, this);
-    spots_sub_ = nh.subscribe("spots", 1, &TriangulatorNodelet::spotsCallback, this);
-  }
-
-  void infoCallback(const sensor_msgs::CameraInfoConstPtr& info)
+  void infoCb(const sensor_msgs::CameraInfoConstPtr& info)
   {
     std::lock_guard<std::mutex> lock(state_mutex_);
     info_ = info;
   }
 
-  static TriangulatorParams paramsFrom(const Config& c)
+  void spotsCb(const CentroidArrayConstPtr& msg)
   {
-    TriangulatorParams o;
-    o.min_depth = c.min_depth;
-    o.max_depth = c.max_depth;
-    o.max_epipolar_distance_px = c.max_epipolar_distance_px;
-    o.max_ray_gap = c.max_ray_gap;
-    o.ambiguity_margin = c.ambiguity_margin;
-    o.prediction_tolerance_px = c.prediction_tolerance_px;
-    o.tracking_radius_px = c.tracking_radius_px;
-    o.assignment = c.assignment == "sort" ? BeamAssignment::kSort : BeamAssignment::kEpipolar;
-    return o;
-  }
-
-  static bool sameModel(const CameraModel& a, const CameraModel& b)
-  {
-    return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
-           a.cy == b.cy && a.distortion == b.distortion && a.D == b.D;
-  }
-
-  static bool sameParams(const TriangulatorParams& a, const TriangulatorParams& b)
-  {
-    return a.min_depth == b.min_depth && a.max_depth == b.max_depth &&
-           a.max_epipolar_distance_px == b.max_epipolar_distance_px && a.max_ray_gap == b.max_ray_gap &&
-           a.ambiguity_margin == b.ambiguity_margin && a.prediction_tolerance_px == b.prediction_tolerance_px &&
-           a.tracking_radius_px == b.tracking_radius_px && a.assignment == b.assignment;
-  }
-
-  void spotsCallback(const CentroidArrayConstPtr& msg)
-  {
-    try
-    {
-      process(msg);
-    }
-    catch (const std::exception& e)
-    {
-      dropFrame(std::string("frame dropped: ") + e.what());
-    }
+    guarded([&] { process(msg); });
   }
 
   void process(const CentroidArrayConstPtr& msg)
@@ -208,109 +187,125 @@ private:
     }
     if (!config.enabled)
       return;
+    const std::shared_ptr<const Triangulator> tri = triangulatorFor(*msg, config);
+    if (!tri)
+      return;  // dropped, said why
+    const Spots spots = spotsFromMsg(*msg);
+    if (!allFinite(spots))
+      return;
+    const TriangulationResult result = track(tri, spots, msg->header.stamp, config);
+    publish(msg, *tri, result);
 
-    std::shared_ptr<const Triangulator> tri;
+    frequency_->tick();
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    last_ = result;
+    last_spots_ = spots.size();
+    last_beams_ = tri->projector().beamCount();
+    last_ms_ = (ros::WallTime::now() - start).toSec() * 1e3;
+    have_stats_ = true;
+  }
+
+  // The core object for this frame's camera_info and config (made again when
+  // either changed); null, after dropping the frame, when there is none.
+  // The core's BeamTracker decides when the previous result may serve as
+  // the prior (tracking on, same core object, stamps close and increasing).
+  TriangulationResult track(const std::shared_ptr<const Triangulator>& tri, const Spots& spots, const ros::Time& stamp,
+                            const Config& config)
+  {
+    BeamTrackerParams tracking;
+    tracking.use_tracking = config.use_tracking;
+    tracking.reset_gap_s = config.tracking_reset_gap;
+    std::lock_guard<std::mutex> lock(track_mutex_);
+    tracker_.setParams(tracking);
+    return tracker_.process(tri, spots, stamp.toSec());
+  }
+
+  std::shared_ptr<const Triangulator> triangulatorFor(const CentroidArray& msg, const Config& config)
+  {
     sensor_msgs::CameraInfoConstPtr info;
     {
       std::lock_guard<std::mutex> lock(state_mutex_);
       if (!calibration_error_.empty())
       {
         dropFrame(calibration_error_ + "; nothing published");
-        return;
+        return nullptr;
       }
       info = info_;
     }
+    CameraModel model;
+    if (!usableInfo(msg, info, &model))
+      return nullptr;
+    const TriangulatorParams params = paramsFromConfig(config);
+    std::lock_guard<std::mutex> lock(state_mutex_);
+    if (!triangulator_ || !sameModel(triangulator_->camera(), model) || !sameParams(triangulator_->params(), params))
+      triangulator_ = std::make_shared<const Triangulator>(model, calibration_, params);
+    return triangulator_;
+  }
+
+  // The camera model of the latest camera_info, when it fits the spots'
+  // image (style weak spots 2 and 3: refuse a mismatch, use the latest info
+  // whatever its stamp and warn once when stale).
+  bool usableInfo(const CentroidArray& msg, const sensor_msgs::CameraInfoConstPtr& info, CameraModel* model)
+  {
     if (!info)
     {
       dropFrame("no camera_info received on " + getNodeHandle().resolveName("camera/camera_info") +
                 " yet; nothing published");
-      return;
+      return false;
     }
-    if (info->width != msg->image_width || info->height != msg->image_height)
+    if (info->width != msg.image_width || info->height != msg.image_height)
     {
       dropFrame("camera_info is " + std::to_string(info->width) + "x" + std::to_string(info->height) +
-                " but the spots come from a " + std::to_string(msg->image_width) + "x" +
-                std::to_string(msg->image_height) + " image; frame dropped (wrong camera_info, or binning/ROI upstream)");
-      return;
+                " but the spots come from a " + std::to_string(msg.image_width) + "x" +
+                std::to_string(msg.image_height) +
+                " image; frame dropped (wrong camera_info, or binning/ROI upstream)");
+      return false;
     }
-    const double age = std::abs((msg->header.stamp - info->header.stamp).toSec());
+    const double age = std::abs((msg.header.stamp - info->header.stamp).toSec());
     if (info_stale_s_ > 0.0 && age > info_stale_s_ && !stale_warned_)
     {
-      NODELET_WARN("Triangulator: the latest camera_info is %.2f s away from the spots' stamp; using it anyway "
-                   "(warned once)",
-                   age);
+      NODELET_WARN(
+          "Triangulator: the latest camera_info is %.2f s away from the spots' stamp; using it anyway "
+          "(warned once)",
+          age);
       stale_warned_ = true;
     }
-    CameraModel model;
     std::string err;
-    if (!cameraModelFromInfo(*info, &model, &err))
+    if (!cameraModelFromInfo(*info, model, &err))
     {
       dropFrame(err + "; frame dropped");
-      return;
+      return false;
     }
+    return true;
+  }
 
-    const TriangulatorParams params = paramsFrom(config);
-    {
-      std::lock_guard<std::mutex> lock(state_mutex_);
-      if (!triangulator_ || !sameModel(triangulator_->camera(), model) || !sameParams(triangulator_->params(), params))
-        triangulator_ = std::make_shared<const Triangulator>(model, calibration_, params);
-      tri = triangulator_;
-    }
-
-    const Spots spots = spotsFromMsg(*msg);
-    // Non-finite centroids mean a broken upstream: drop the frame rather
-    // than publish a map built from part of it.
+  // Non-finite centroids mean a broken upstream: drop the frame rather than
+  // publish a map built from part of it.
+  bool allFinite(const Spots& spots)
+  {
     size_t bad = 0;
     for (const Spot& s : spots)
       bad += !std::isfinite(s.x) || !std::isfinite(s.y);
-    if (bad > 0)
-    {
-      dropFrame(std::to_string(bad) + " of " + std::to_string(spots.size()) +
-                " centroids are NaN or infinite; frame dropped");
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      nan_frames_ += 1;
-      return;
-    }
-    // Tracking prior: the core's BeamTracker decides when the previous
-    // result may be used (same core object, stamps close and increasing).
-    TriangulationResult result;
-    {
-      BeamTrackerParams tracking;
-      tracking.use_tracking = config.use_tracking;
-      tracking.reset_gap_s = config.tracking_reset_gap;
-      std::lock_guard<std::mutex> lock(track_mutex_);
-      tracker_.setParams(tracking);
-      result = tracker_.process(tri, spots, msg->header.stamp.toSec());
-    }
+    if (bad == 0)
+      return true;
+    dropFrame(std::to_string(bad) + " of " + std::to_string(spots.size()) +
+              " centroids are NaN or infinite; frame dropped");
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    nan_frames_ += 1;
+    return false;
+  }
 
-    const ProjectorCalibration& cal = tri->projector();
-    points_pub_.publish(makeBeamCloud(msg->header, cal.rows, cal.cols, result.points, result.intensity));
-    if (assigned_pub_.getNumSubscribers() > 0)
+  void publish(const CentroidArrayConstPtr& msg, const Triangulator& tri, const TriangulationResult& result)
+  {
+    const ProjectorCalibration& cal = tri.projector();
+    pub_points_.publish(makeBeamCloud(msg->header, cal.rows, cal.cols, result.points, result.intensity));
+    if (pub_assigned_.getNumSubscribers() > 0)
     {
       CentroidArrayPtr out(new CentroidArray(*msg));
       for (size_t j = 0; j < out->centroids.size(); ++j)
         out->centroids[j].beam = result.beam_of_spot[j];
-      assigned_pub_.publish(out);
+      pub_assigned_.publish(out);
     }
-
-    freq_status_->tick();
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    last_ = result;
-    last_spots_ = spots.size();
-    last_beams_ = cal.beamCount();
-    last_ms_ = (ros::WallTime::now() - start).toSec() * 1e3;
-    have_stats_ = true;
-  }
-
-  // Each kind of problem is logged at once, then at most every 5 s: a
-  // throttle per call site would hide a second, different camera_info fault.
-  void dropFrame(const std::string& why)
-  {
-    int suppressed = 0;
-    if (!drop_log_.shouldLog(why, &suppressed))
-      return;
-    const std::string note = suppressed > 0 ? " (" + std::to_string(suppressed) + " more like it suppressed)" : "";
-    NODELET_ERROR("Triangulator: %s%s", why.c_str(), note.c_str());
   }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
@@ -342,17 +337,16 @@ private:
     stat.add("spots unassigned", last_.unassigned_spots);
     stat.add("frames dropped for NaN centroids", nan_frames_);
     stat.add("mean ray gap (mm)", last_.mean_ray_gap * 1e3);
-    stat.add("beams settled by the tracking prior", last_.tracked < 0 ? std::string("no prior") :
-                                                                         std::to_string(last_.tracked));
+    stat.add("beams settled by the tracking prior",
+             last_.tracked < 0 ? std::string("no prior") : std::to_string(last_.tracked));
     stat.add("processing time (ms)", last_ms_);
   }
 
-  // Parameters.
-  bool lazy_ = true;
+  // Parameters fixed at start-up (the calibration path also on reload).
   double info_stale_s_ = 1.0;
   std::string calibration_path_;
 
-  // Reconfigure.
+  // dynamic_reconfigure: configCb() validates, the frame callback copies.
   boost::recursive_mutex config_mutex_;
   Config config_;
   std::shared_ptr<dynamic_reconfigure::Server<Config>> reconfigure_server_;
@@ -363,23 +357,15 @@ private:
   std::string calibration_error_;
   sensor_msgs::CameraInfoConstPtr info_;
   std::shared_ptr<const Triangulator> triangulator_;
-
-  // Tracking prior: the previous frame's result and when to forget it.
   std::mutex track_mutex_;
-  BeamTracker tracker_;
+  BeamTracker tracker_;  // the tracking prior carried from frame to frame
   std::atomic<bool> stale_warned_{false};
 
-  // ROS I/O.
-  std::mutex connect_mutex_;
-  ros::Subscriber spots_sub_, info_sub_;
-  ros::Publisher points_pub_, assigned_pub_;
-  ros::ServiceServer reload_service_;
+  ros::Subscriber sub_spots_, sub_info_;
+  ros::Publisher pub_points_, pub_assigned_;
+  ros::ServiceServer srv_reload_;
 
-  // Diagnostics.
-  std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
-  double min_freq_ = 1.0, max_freq_ = 1000.0;
-  std::shared_ptr<diagnostic_updater::FrequencyStatus> freq_status_;
-  ros::Timer diag_timer_;
+  // Statistics for diagnostics.
   std::mutex stats_mutex_;
   TriangulationResult last_;
   size_t last_spots_ = 0;
@@ -387,7 +373,6 @@ private:
   double last_ms_ = 0.0;
   bool have_stats_ = false;
   unsigned long nan_frames_ = 0;
-  DropLog drop_log_;
 };
 
 }  // namespace structured_light_stabilizer

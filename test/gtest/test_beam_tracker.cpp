@@ -6,7 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "structured_light_stabilizer/beam_tracker.h"
-#include "triangulator_scene.h"
+#include "support/triangulator_scene.h"
 
 using namespace structured_light_stabilizer;
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Checks that the manager loaded all four nodelets without an error, that its
 services answer, that each standalone node is up, and that rosmsg knows the
-package's three messages with exactly the fields of the SPEC."""
+package's three messages with exactly the fields of docs/interface.md."""
 import subprocess
 import time
 import unittest

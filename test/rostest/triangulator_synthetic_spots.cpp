@@ -10,7 +10,7 @@
 
 #include "support/triangulator_scene.h"
 #include "structured_light_stabilizer/CentroidArray.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 
 using namespace structured_light_stabilizer;
 

@@ -22,7 +22,7 @@ SIM_FOCAL_PX = 12.14e-3 / 12e-6  # the study's design camera, the simulator's de
 
 class BadCameraInfoFiles(unittest.TestCase):
     def test_each_file_refused(self):
-        rospy.init_node("bad_camera_info_files_check")
+        rospy.init_node("check_bad_camera_info_files")
         cases = rospy.get_param("~cases").split()
         lock = threading.Lock()
         logs, infos = [], {}

@@ -36,7 +36,7 @@ SHUTDOWN_BOUND_S = 2.0
 class UnloadShutdown(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        rospy.init_node("unload_shutdown_check")
+        rospy.init_node("check_unload_shutdown")
         cls.lock = threading.Lock()
         cls.last = {}
         for topic, kind in (("spots", CentroidArray), ("points", PointCloud2), ("pose_delta", PoseDelta)):

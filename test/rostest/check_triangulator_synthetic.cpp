@@ -8,7 +8,7 @@
 #include <ros/ros.h>
 #include <sensor_msgs/PointCloud2.h>
 
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 
 using namespace structured_light_stabilizer;
 
@@ -92,9 +92,8 @@ TEST(TriangulatorRostest, PointsMatchTruth)
   ASSERT_GE(compared, frames) << "the Triangulator published too few clouds matching the truth";
   const double rms_rel = std::sqrt(sum2_rel / std::max(1, identified));
   std::cout << "[ MEASURE ] " << compared << " clouds: " << identified << " of " << visible
-            << " beam hits with a dot triangulated (dots dropped upstream included), " << wrong
-            << " wrong; depth RMS " << std::sqrt(sum2 / std::max(1, identified)) * 1e3 << " mm = " << rms_rel * 100
-            << " %\n";
+            << " beam hits with a dot triangulated (dots dropped upstream included), " << wrong << " wrong; depth RMS "
+            << std::sqrt(sum2 / std::max(1, identified)) * 1e3 << " mm = " << rms_rel * 100 << " %\n";
   EXPECT_EQ(wrong, 0);
   EXPECT_LT(rms_rel, max_rms_fraction);
   EXPECT_GE(identified, min_identified * visible);
@@ -103,7 +102,7 @@ TEST(TriangulatorRostest, PointsMatchTruth)
 int main(int argc, char** argv)
 {
   testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "triangulator_check");
+  ros::init(argc, argv, "check_triangulator_synthetic");
   ros::AsyncSpinner spinner(2);
   spinner.start();
   return RUN_ALL_TESTS();

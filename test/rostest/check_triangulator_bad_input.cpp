@@ -12,7 +12,7 @@
 
 #include "support/triangulator_scene.h"
 #include "structured_light_stabilizer/CentroidArray.h"
-#include "structured_light_stabilizer/conversions.h"
+#include "conversions.h"
 
 using namespace structured_light_stabilizer;
 
@@ -124,7 +124,8 @@ TEST(TriangulatorBadInput, NothingPublishedNothingKilled)
   while (nocal.spots_pub.getNumSubscribers() == 0 && ros::WallTime::now() < end)
     ros::WallDuration(0.1).sleep();
   EXPECT_EQ(nocal.feed(good), 0) << "published without a projector calibration";
-  ros::ServiceClient reload = ros::NodeHandle().serviceClient<std_srvs::Trigger>("nocal/triangulator/reload_calibration");
+  ros::ServiceClient reload =
+      ros::NodeHandle().serviceClient<std_srvs::Trigger>("nocal/triangulator/reload_calibration");
   ASSERT_TRUE(reload.waitForExistence(ros::Duration(10.0)));
   std_srvs::Trigger srv;
   ASSERT_TRUE(reload.call(srv));
@@ -136,7 +137,7 @@ TEST(TriangulatorBadInput, NothingPublishedNothingKilled)
 int main(int argc, char** argv)
 {
   testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "triangulator_bad_input_check");
+  ros::init(argc, argv, "check_triangulator_bad_input");
   ros::AsyncSpinner spinner(2);
   spinner.start();
   return RUN_ALL_TESTS();

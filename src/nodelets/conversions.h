@@ -1,10 +1,12 @@
-// Conversions between the ROS-free core types and ROS messages. The only
-// place (with src/nodelets/) that includes both worlds.
+// Conversions between the ROS-free core types and ROS messages, for the
+// nodelets and the C++ rostest checkers (kept here, out of the ROS-free
+// include/ folder: the core must not depend on ROS).
 //
-// The organised cloud layout is the `points` contract of SPEC §2: height =
-// projector rows, width = projector cols, point (r, c) = beam r * cols + c,
-// fields x y z intensity (float32, metres, camera optical frame) and beam
-// (uint32); a beam without a valid point is NaN; is_dense = false.
+// The organised cloud layout is the `points` contract of docs/interface.md:
+// height = projector rows, width = projector cols, point (r, c) = beam
+// r * cols + c, fields x y z intensity (float32, metres, camera optical
+// frame) and beam (uint32); a beam without a valid point is NaN;
+// is_dense = false.
 #pragma once
 
 #include <string>
@@ -39,8 +41,8 @@ sensor_msgs::PointCloud2Ptr makeBeamCloud(const std_msgs::Header& header, int ro
 
 // Reads an organised `points` cloud back. Returns false with the reason when
 // the layout or the fields are not the contract's.
-bool readBeamCloud(const sensor_msgs::PointCloud2& cloud, int* rows, int* cols,
-                   std::vector<Eigen::Vector3d>* points, std::vector<float>* intensity, std::string* error);
+bool readBeamCloud(const sensor_msgs::PointCloud2& cloud, int* rows, int* cols, std::vector<Eigen::Vector3d>* points,
+                   std::vector<float>* intensity, std::string* error);
 
 Spots spotsFromMsg(const CentroidArray& msg);
 void spotsToMsg(const Spots& spots, CentroidArray* msg);

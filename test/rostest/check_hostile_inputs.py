@@ -51,7 +51,7 @@ ENCODINGS = {
 for _depth, _size in (("8U", 1), ("8S", 1), ("16U", 2), ("16S", 2), ("32S", 4), ("32F", 4), ("64F", 8)):
     for _ch in range(1, 5):
         ENCODINGS["%sC%d" % (_depth, _ch)] = _size * _ch
-ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1")  # SpotDetector's inputs (SPEC §2; 8UC1 = mono8)
+ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1")  # SpotDetector's inputs (docs/interface.md; 8UC1 = mono8)
 
 
 def image(width, height, encoding, step=None, data=None, fill=0):
@@ -83,7 +83,7 @@ def camera_info(width, height, fx, fy=None, cx=None, cy=None):
 class HostileInputs(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        rospy.init_node("hostile_inputs_check")
+        rospy.init_node("check_hostile_inputs")
         cls.lock = threading.Lock()
         cls.manager = rospy.get_param("~manager", "/stabilizer_manager")
         cls.out = {"spots": {}, "points": {}, "pose_delta": {}}
@@ -128,8 +128,8 @@ class HostileInputs(unittest.TestCase):
     # ------------------------------------------------------------------ I/O
     @staticmethod
     def pid_of(node):
-        api = rosnode.get_api_uri(rosgraph.Master("/hostile_inputs_check"), node, skip_cache=True)
-        code, _, pid = xmlrpc.client.ServerProxy(api).getPid("/hostile_inputs_check")
+        api = rosnode.get_api_uri(rosgraph.Master("/check_hostile_inputs"), node, skip_cache=True)
+        code, _, pid = xmlrpc.client.ServerProxy(api).getPid("/check_hostile_inputs")
         assert code == 1, "getPid failed"
         return pid
 

@@ -54,7 +54,7 @@ INCONSISTENT = [
 class DynamicReconfigureLimits(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        rospy.init_node("dynamic_reconfigure_limits_check")
+        rospy.init_node("check_dynamic_reconfigure_limits")
         cls.lock = threading.Lock()
         cls.manager = rospy.get_param("~manager", "/stabilizer_manager")
         cls.logs = []

@@ -68,7 +68,7 @@ def image_msg(array, encoding, step=None, seq=0):
 class SpotDetectorInput(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
-        rospy.init_node("spot_detector_input_check")
+        rospy.init_node("check_spot_detector_input")
         cls.lock = threading.Lock()
         cls.spots = {}
         cls.debug = {}

@@ -1,0 +1,135 @@
+// Frame sources of the CameraDriver nodelet: where its images come from
+// (the simulator, a V4L2 device, a video file, a folder of images). A source
+// opens, grabs and describes; the nodelet does the rest the same way for
+// every source: pacing at ~rate, stamps' header, publishing image +
+// camera_info, diagnostics, and the one retry policy (a source that cannot
+// open, or is lost, is reported throttled and opened again every
+// kRetryPeriodS seconds).
+//
+// Adding a source: one file frame_source_<name>.cpp with its class and its
+// make<Name>Source() (declared below), and one line in the table of
+// frame_source.cpp. Where the planned extensions go:
+// - publishing what the source gives (Bayer, mono8/16) instead of bgr8: the
+//   source fills Frame::encoding and stops calling toBgr8();
+// - a strobed simulator (projector-off frames on camera/image_ambient): a
+//   Frame field naming the stream, routed in CameraDriverNodelet::publishFrame();
+// - an arm model driven by a velocity command topic: a subscriber that the
+//   sim source makes on SourceContext::nh when it is set up.
+//
+// Threads: open, close, grab and published run on the driver's worker
+// thread; reconfigure on dynamic_reconfigure's, with the driver's
+// config_mutex_ held; a source guards what the two share.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <std_msgs/Header.h>
+
+#include "structured_light_stabilizer/CameraDriverConfig.h"
+
+namespace structured_light_stabilizer
+{
+
+// Wait between two attempts to open a source (s).
+constexpr double kRetryPeriodS = 2.0;
+
+// What a source may use of the driver.
+struct SourceContext
+{
+  ros::NodeHandle nh;   // the driver's namespace (topics)
+  ros::NodeHandle pnh;  // its private parameters
+  // Log lines on the driver's logger; they add the "CameraDriver: " prefix.
+  std::function<void(const std::string&)> info, warn, error;
+  // Acquisition stamp of a frame taken now; false (after a throttled warning)
+  // while ROS time is zero (use_sim_time without /clock): no frame then.
+  std::function<bool(ros::Time*)> stamp;
+  // Subscribers of camera/image_raw (a lazy source renders only for them).
+  std::function<uint32_t()> image_subscribers;
+  // ~camera_info_url and its intrinsics when they loaded with K != 0 (else null).
+  std::string camera_info_url;
+  std::shared_ptr<const sensor_msgs::CameraInfo> url_calibration;
+};
+
+struct Frame
+{
+  cv::Mat image;
+  std::string encoding = "bgr8";  // sensor_msgs/image_encodings name of `image`
+  ros::Time stamp;                // acquisition time (SourceContext::stamp)
+  double processing_ms = 0.0;     // render or acquisition time, for diagnostics
+};
+
+enum class GrabStatus
+{
+  kFrame,    // publish the frame
+  kSkip,     // nothing this tick; a non-empty message is a frame dropped (reported)
+  kBackOff,  // nothing to give for now: wait kRetryPeriodS, then grab again
+  kLost,     // the source failed (message says why): report, close, reopen after kRetryPeriodS
+  kEnd       // no more frames (message logged once); the driver idles
+};
+
+struct GrabResult
+{
+  GrabStatus status;
+  std::string message;
+};
+
+class FrameSource
+{
+public:
+  virtual ~FrameSource() = default;
+
+  // Opens the source (again after a loss). False with *why when it cannot.
+  virtual bool open(std::string* why) = 0;
+  // Releases what open() took.
+  virtual void close() {}
+  // One frame, taken now. `rate` (Hz) is ~rate for this tick.
+  virtual GrabResult grab(double rate, Frame* frame) = 0;
+  // The line logged after each successful open() (empty: nothing to add).
+  virtual std::string describe(double rate) const = 0;
+
+  // True when the driver paces grab() at ~rate; a device paces itself.
+  virtual bool paced() const { return true; }
+  // True for a rendered source: diagnostics show the render time and the
+  // publish rate reached, and warn when rendering cannot keep up.
+  virtual bool rendered() const { return false; }
+  // The source's own camera_info (a simulator knows its intrinsics); null:
+  // ~camera_info_url's when it fits the frame, else an uncalibrated one.
+  virtual const sensor_msgs::CameraInfo* cameraInfo() const { return nullptr; }
+  // After a frame went out, with its header (the simulator publishes its
+  // ground truth here, stamped like the frame).
+  virtual void published(const std_msgs::Header& /*header*/) {}
+  // Live settings: a source applies those that concern it and writes back
+  // the values in force.
+  virtual void reconfigure(CameraDriverConfig& /*config*/) {}
+};
+
+// The sources, one file each. A factory returns null when the source cannot
+// work with its parameters at all (said why on ctx.error).
+std::unique_ptr<FrameSource> makeSimSource(const SourceContext& ctx);
+std::unique_ptr<FrameSource> makeDeviceSource(const SourceContext& ctx);
+std::unique_ptr<FrameSource> makeVideoSource(const SourceContext& ctx);
+std::unique_ptr<FrameSource> makeImagesSource(const SourceContext& ctx);
+
+// ~source names: "sim, device, video, images" (for messages).
+std::string frameSourceNames();
+bool isFrameSource(const std::string& name);
+// The source called `name`; null when unknown or when it cannot be set up.
+std::unique_ptr<FrameSource> makeFrameSource(const std::string& name, const SourceContext& ctx);
+
+// Whatever a capture or an image file gives (8/16-bit, 1/3/4 channels), as bgr8.
+cv::Mat toBgr8(const cv::Mat& in);
+
+// printf into a std::string (messages of the sources).
+std::string stringf(const char* format, ...) __attribute__((format(printf, 1, 2)));
+
+// Milliseconds since t0 (steady clock).
+double millisecondsSince(const std::chrono::steady_clock::time_point& t0);
+
+}  // namespace structured_light_stabilizer

@@ -1,0 +1,381 @@
+// CameraDriver source "sim": the built-in simulator (docs/simulator.md)
+// renders the rock, the dots, the sun and the arm's motion, and publishes its
+// ground truth beside each frame, stamped like it: the true beam points
+// (sim/ground_truth/points, the layout of `points`), the true camera motion
+// (sim/ground_truth/pose_delta) and the true dots (sim/ground_truth/spots).
+//
+// Scene parameters are read once at start-up (README, "Parameters of the
+// simulator"); lighting, noise and jitter are live (cfg/CameraDriver.cfg).
+// Simulated time advances by 1 / ~rate per frame, deterministically, also
+// across rate changes and while ~lazy skips the rendering.
+#include <mutex>
+#include <utility>
+#include <vector>
+
+#include <boost/make_shared.hpp>
+#include <sensor_msgs/PointCloud2.h>
+
+#include "structured_light_stabilizer/CentroidArray.h"
+#include "structured_light_stabilizer/PoseDelta.h"
+#include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/sim/simulator.h"
+#include "conversions.h"
+#include "frame_source.h"
+#include "param_reader.h"
+
+namespace structured_light_stabilizer
+{
+
+namespace
+{
+
+bool radiometryModel(const std::string& name, RadiometryModel* model)
+{
+  if (name == "study")
+    *model = RadiometryModel::kStudyAsStated;
+  else if (name == "corrected")
+    *model = RadiometryModel::kCorrected;
+  else
+    return false;
+  return true;
+}
+
+// The scene parameters, read over the defaults of SimulatorParams in this
+// order (the order of the error messages for wrongly typed ones).
+void readSceneParams(const ParamReader& read, SimulatorParams* c)
+{
+  read.integer("seed", &c->rock.seed);
+  read.integer("noise_seed", &c->noise_seed);
+  read.integer("projector_rows", &c->projector.rows);
+  read.integer("projector_cols", &c->projector.cols);
+  read.integer("rock_subsample", &c->rock_subsample);
+  read.integer("clutter_specks", &c->clutter.green_specks);
+  read.integer("clutter_olive", &c->clutter.olive_minerals);
+  read.integer("clutter_blobs", &c->clutter.green_blobs);
+  const std::pair<const char*, double*> numbers[] = {
+      {"rock_distance", &c->rock.distance_m},
+      {"rock_width", &c->rock.width_m},
+      {"rock_height", &c->rock.height_m},
+      {"rock_relief", &c->rock.relief_m},
+      {"rock_tilt_x", &c->rock.tilt_x_rad},
+      {"rock_tilt_y", &c->rock.tilt_y_rad},
+      {"texture_scale", &c->rock.texture_scale_m},
+      {"albedo_min", &c->rock.albedo_min},
+      {"albedo_max", &c->rock.albedo_max},
+      {"rock_step_height", &c->rock.step_height_m},
+      {"rock_step_x", &c->rock.step_x_m},
+      {"projector_roll", &c->projector.roll_rad},
+      {"projector_converge_distance", &c->projector.converge_distance_m},
+      {"beam_sigma", &c->projector.beam_sigma_rad},
+      {"power_scale", &c->projector.power_scale},
+      {"sun_level", &c->lighting.sun_level},
+      {"exposure", &c->lighting.exposure},
+      {"jitter_translation", &c->motion.jitter_translation_m},
+      {"jitter_rotation", &c->motion.jitter_rotation_rad},
+      {"jitter_frequency", &c->motion.jitter_frequency_hz},
+      {"step_period", &c->motion.step_period_s},
+      {"return_period", &c->motion.return_period_s},
+      {"read_noise", &c->sensor.read_noise_dn},
+      {"gain", &c->sensor.gain_dn_per_electron},
+      {"focus_distance", &c->sensor.focus_distance_m},
+      {"aperture", &c->sensor.aperture_diameter_m},
+  };
+  for (const auto& p : numbers)
+    read.number(p.first, p.second);
+  read.boolean("shot_noise", &c->sensor.shot_noise);
+  read.boolean("vignetting", &c->sensor.natural_vignetting);
+  // ~projector_pitch sets both pitches; ~projector_pitch_x/_y override one.
+  double pitch = c->projector.pitch_x_rad;
+  read.number("projector_pitch", &pitch);
+  c->projector.pitch_x_rad = c->projector.pitch_y_rad = pitch;
+  read.number("projector_pitch_x", &c->projector.pitch_x_rad);
+  read.number("projector_pitch_y", &c->projector.pitch_y_rad);
+  read.vector3("projector_origin", &c->projector.origin_m);
+  read.vector3("drift_velocity", &c->motion.drift_velocity_mps);
+  read.vector3("drift_angular_velocity", &c->motion.drift_angular_velocity_radps);
+  read.vector3("step_translation", &c->motion.step_translation_m);
+  std::vector<double> D;
+  if (read.numbers("distortion_coeffs", 5, &D) && !D.empty())
+  {
+    c->sensor.camera.distortion = DistortionModel::kPlumbBob;
+    c->sensor.camera.D = D;
+  }
+}
+
+// ---- dynamic_reconfigure <-> the simulator's live settings, one function each way.
+
+void liveSettingsFromConfig(const CameraDriverConfig& config, RadiometryModel model, SimulatorParams* c)
+{
+  c->lighting.sun_level = config.sun_level;
+  // Negative: the ratio of the scene analysis for the chosen radiometry.
+  c->lighting.dot_to_sun_ratio =
+      config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingParams::sceneDotToSunRatio(model);
+  c->lighting.exposure = config.exposure;
+  c->projector.power_scale = config.power_scale;
+  c->motion.jitter_translation_m = config.jitter_translation;
+  c->motion.jitter_rotation_rad = config.jitter_rotation;
+  c->motion.jitter_frequency_hz = config.jitter_frequency;
+  c->sensor.read_noise_dn = config.read_noise;
+  c->sensor.shot_noise = config.shot_noise;
+}
+
+void configFromLiveSettings(const SimulatorParams& c, CameraDriverConfig* config)
+{
+  config->sun_level = c.lighting.sun_level;
+  config->dot_to_sun_ratio = c.lighting.dot_to_sun_ratio;
+  config->exposure = c.lighting.exposure;
+  config->power_scale = c.projector.power_scale;
+  config->jitter_translation = c.motion.jitter_translation_m;
+  config->jitter_rotation = c.motion.jitter_rotation_rad;
+  config->jitter_frequency = c.motion.jitter_frequency_hz;
+  config->read_noise = c.sensor.read_noise_dn;
+  config->shot_noise = c.sensor.shot_noise;
+}
+
+class SimSource : public FrameSource
+{
+public:
+  explicit SimSource(const SourceContext& ctx) : ctx_(ctx) {}
+
+  // Builds the simulator from the parameters; false (said why) when they
+  // are invalid: the driver then publishes nothing.
+  bool setUp()
+  {
+    SimulatorParams c;
+    readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
+    const std::string ratio_source = readLighting(&c);
+    duration_s_ = ctx_.pnh.param("duration", 0.0);
+    useUrlCalibration(&c);
+    if (!build(c, ratio_source))
+      return false;
+    sim_info_ = cameraInfoFromModel(simulator_->camera(), std_msgs::Header());
+    pub_gt_points_ = ctx_.nh.advertise<sensor_msgs::PointCloud2>("sim/ground_truth/points", 2);
+    pub_gt_pose_ = ctx_.nh.advertise<PoseDelta>("sim/ground_truth/pose_delta", 2);
+    pub_gt_spots_ = ctx_.nh.advertise<CentroidArray>("sim/ground_truth/spots", 2);
+    lazy_ = ctx_.pnh.param("lazy", true);
+    if (lazy_)
+      ctx_.info(
+          "~lazy: frames are rendered only while someone subscribes to the image or the ground truth "
+          "(simulated time runs on regardless)");
+    writeProjectorCalibration();
+    return true;
+  }
+
+  bool open(std::string* /*why*/) override { return true; }
+  std::string describe(double /*rate*/) const override { return ""; }  // said by setUp()
+  bool rendered() const override { return true; }
+  const sensor_msgs::CameraInfo* cameraInfo() const override { return &sim_info_; }
+
+  GrabResult grab(double rate, Frame* frame) override
+  {
+    if (rate != rate_base_)
+    {
+      // A rate change keeps simulated time continuous.
+      if (index_ > index_base_)
+        t_base_ += (index_ - index_base_) / rate_base_;
+      index_base_ = index_;
+      rate_base_ = rate;
+    }
+    const double t = t_base_ + (index_ - index_base_) / rate;
+    if (duration_s_ > 0.0 && t >= duration_s_)
+      return {GrabStatus::kEnd, stringf("~duration %.1f s of simulated time reached; no more frames", duration_s_)};
+    if (!ctx_.stamp(&frame->stamp))
+      return {GrabStatus::kSkip, ""};
+    ++index_;
+    if (lazy_ && ctx_.image_subscribers() == 0 && pub_gt_points_.getNumSubscribers() == 0 &&
+        pub_gt_pose_.getNumSubscribers() == 0 && pub_gt_spots_.getNumSubscribers() == 0)
+      return {GrabStatus::kSkip, ""};
+    rendered_by_ = simulator();
+    const auto t0 = std::chrono::steady_clock::now();
+    rendered_ = rendered_by_->render(t);
+    frame->processing_ms = millisecondsSince(t0);
+    frame->image = rendered_.image;
+    return {GrabStatus::kFrame, ""};
+  }
+
+  void published(const std_msgs::Header& header) override;
+  void reconfigure(CameraDriverConfig& config) override;
+
+private:
+  std::string readLighting(SimulatorParams* c);
+  void useUrlCalibration(SimulatorParams* c) const;
+  bool build(const SimulatorParams& c, const std::string& ratio_source);
+  void writeProjectorCalibration() const;
+
+  std::shared_ptr<const Simulator> simulator() const
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return simulator_;
+  }
+
+  SourceContext ctx_;
+  double duration_s_ = 0.0;  // s of simulated time; 0 = no end
+  bool lazy_ = true;
+  sensor_msgs::CameraInfo sim_info_;
+  ros::Publisher pub_gt_points_, pub_gt_pose_, pub_gt_spots_;
+
+  mutable std::mutex mutex_;
+  std::shared_ptr<const Simulator> simulator_;  // under mutex_; replaced, never modified
+  std::string radiometry_ = "study";            // reconfigure() only (dynamic_reconfigure's thread)
+
+  // Worker thread: simulated time, the last frame and the simulator that rendered it.
+  uint64_t index_ = 0, index_base_ = 0;
+  double t_base_ = 0.0, rate_base_ = 0.0;
+  SimFrame rendered_;
+  std::shared_ptr<const Simulator> rendered_by_;
+};
+
+// The dot-versus-sun brightness comes from the scene analysis unless
+// ~dot_to_sun_ratio overrides it (negative = not set). Returns where it came
+// from, for the start-up line.
+std::string SimSource::readLighting(SimulatorParams* c)
+{
+  radiometry_ = ctx_.pnh.param<std::string>("radiometry", "study");
+  RadiometryModel model = RadiometryModel::kStudyAsStated;
+  if (!radiometryModel(radiometry_, &model))
+  {
+    ctx_.error(stringf("unknown ~radiometry '%s' (study | corrected); using 'study'", radiometry_.c_str()));
+    radiometry_ = "study";
+    model = RadiometryModel::kStudyAsStated;
+    ctx_.pnh.setParam("radiometry", radiometry_);  // dynamic_reconfigure starts from it
+  }
+  double ratio = -1.0;
+  ParamReader(ctx_.pnh, ctx_.error).number("dot_to_sun_ratio", &ratio);
+  c->lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingParams::sceneDotToSunRatio(model);
+  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
+}
+
+// A calibration file for the simulated camera replaces its intrinsics (and
+// distortion) when it is of the simulator's size.
+void SimSource::useUrlCalibration(SimulatorParams* c) const
+{
+  if (!ctx_.url_calibration)
+    return;
+  const sensor_msgs::CameraInfo& info = *ctx_.url_calibration;
+  const char* url = ctx_.camera_info_url.c_str();
+  CameraModel model;
+  std::string why;
+  if (static_cast<int>(info.width) != c->sensor.camera.width ||
+      static_cast<int>(info.height) != c->sensor.camera.height)
+    ctx_.error(
+        stringf("~camera_info_url '%s' is for %ux%u images but the simulator renders %dx%d; using the "
+                "simulator's own intrinsics",
+                url, info.width, info.height, c->sensor.camera.width, c->sensor.camera.height));
+  else if (!cameraModelFromInfo(info, &model, &why))
+    ctx_.error(
+        stringf("~camera_info_url '%s' is unusable (%s); using the simulator's own intrinsics", url, why.c_str()));
+  else
+    c->sensor.camera = model;
+}
+
+bool SimSource::build(const SimulatorParams& c, const std::string& ratio_source)
+{
+  try
+  {
+    const auto t0 = std::chrono::steady_clock::now();
+    simulator_ = std::make_shared<const Simulator>(c);
+    ctx_.info(
+        stringf("simulator ready in %.0f ms (rock at %.2f m, relief %.2f m, %dx%d beams, sun %.2f, dot/sun "
+                "ratio %.4g%s)",
+                millisecondsSince(t0), c.rock.distance_m, c.rock.relief_m, c.projector.rows, c.projector.cols,
+                c.lighting.sun_level, c.lighting.dot_to_sun_ratio, ratio_source.c_str()));
+    return true;
+  }
+  catch (const std::exception& e)
+  {
+    ctx_.error(stringf("the simulator parameters are invalid, publishing nothing: %s", e.what()));
+    return false;
+  }
+}
+
+// ~write_projector_calibration: the simulator's exact projector, as a
+// calibration file for the Triangulator.
+void SimSource::writeProjectorCalibration() const
+{
+  const std::string path = ctx_.pnh.param<std::string>("write_projector_calibration", "");
+  if (path.empty())
+    return;
+  std::string why;
+  if (saveProjectorCalibration(path, simulator_->projector(), &why))
+    ctx_.info("wrote the simulator's exact projector calibration to " + path);
+  else
+    ctx_.error("cannot write the projector calibration to '" + path + "': " + why);
+}
+
+void SimSource::published(const std_msgs::Header& header)
+{
+  const ProjectorCalibration& projector = rendered_by_->projector();
+  const SimFrame& frame = rendered_;
+  std::vector<float> intensity(frame.peak_dn.begin(), frame.peak_dn.end());
+  uint32_t visible = 0;
+  auto spots = boost::make_shared<CentroidArray>();
+  spots->header = header;
+  spots->image_width = frame.image.cols;
+  spots->image_height = frame.image.rows;
+  for (int b = 0; b < projector.beamCount(); ++b)
+  {
+    if (!frame.visible[b])
+      continue;
+    ++visible;
+    Centroid c;
+    c.x = frame.pixels[b].x;
+    c.y = frame.pixels[b].y;
+    // Area of the 2-sigma disc of the rendered dot, the size a detector
+    // thresholding at ~14 % of the peak would find.
+    c.area = static_cast<float>(M_PI * 4.0 * frame.blur_sigma_px[b] * frame.blur_sigma_px[b]);
+    c.intensity = static_cast<float>(frame.peak_dn[b]);
+    c.beam = b;
+    spots->centroids.push_back(c);
+  }
+  pub_gt_points_.publish(makeBeamCloud(header, projector.rows, projector.cols, frame.points, intensity));
+  auto pose = boost::make_shared<PoseDelta>();
+  pose->header = header;
+  pose->transform = transformFromIsometry(frame.delta);
+  pose->rms_residual = 0.0;
+  pose->points_used = visible;
+  pose->valid = true;
+  pose->status = "ground truth, simulated t = " + std::to_string(frame.t) + " s";
+  pub_gt_pose_.publish(pose);
+  pub_gt_spots_.publish(spots);
+}
+
+void SimSource::reconfigure(CameraDriverConfig& config)
+{
+  const std::shared_ptr<const Simulator> current = simulator();
+  RadiometryModel model = RadiometryModel::kStudyAsStated;
+  if (!radiometryModel(config.radiometry, &model))
+  {
+    ctx_.warn(stringf("unknown radiometry '%s' (study | corrected); keeping '%s'", config.radiometry.c_str(),
+                      radiometry_.c_str()));
+    config.radiometry = radiometry_;
+    radiometryModel(radiometry_, &model);
+  }
+  radiometry_ = config.radiometry;
+  SimulatorParams c = current->params();
+  liveSettingsFromConfig(config, model, &c);
+  try
+  {
+    auto updated = std::make_shared<Simulator>(*current);
+    updated->updateLive(c);
+    std::lock_guard<std::mutex> lock(mutex_);
+    simulator_ = updated;
+  }
+  catch (const std::exception& e)
+  {
+    ctx_.error(stringf("rejected simulator settings (%s); keeping the previous ones", e.what()));
+    // Show the values in force, not the rejected ones, in rqt_reconfigure.
+    configFromLiveSettings(current->params(), &config);
+  }
+}
+
+}  // namespace
+
+std::unique_ptr<FrameSource> makeSimSource(const SourceContext& ctx)
+{
+  auto source = std::make_unique<SimSource>(ctx);
+  if (!source->setUp())
+    return nullptr;
+  return source;
+}
+
+}  // namespace structured_light_stabilizer

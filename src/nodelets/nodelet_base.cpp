@@ -1,0 +1,108 @@
+#include "nodelet_base.h"
+
+namespace structured_light_stabilizer
+{
+
+void NodeletBase::readLazyParam()
+{
+  getPrivateNodeHandle().param("lazy", lazy_, true);
+}
+
+image_transport::Publisher NodeletBase::advertiseImage(image_transport::ImageTransport& it, const std::string& topic,
+                                                       uint32_t queue_size)
+{
+  const image_transport::SubscriberStatusCallback cb = [this](const image_transport::SingleSubscriberPublisher&)
+  { connectCb(); };
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  image_transport::Publisher pub = it.advertise(topic, queue_size, cb, cb);
+  output_subscribers_.push_back([pub] { return pub.getNumSubscribers(); });
+  return pub;
+}
+
+void NodeletBase::startSubscriptions(const std::string& on_demand_note)
+{
+  if (lazy_)
+    NODELET_INFO("%s: %s", label_.c_str(), on_demand_note.c_str());
+  connectCb();
+}
+
+void NodeletBase::connectCb()
+{
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  if (stopped_)
+    return;
+  bool wanted = !lazy_;
+  for (const auto& subscribers : output_subscribers_)
+    wanted = wanted || subscribers() > 0;
+  if (wanted && !subscribed_)
+    subscribe();
+  else if (!wanted && subscribed_)
+    unsubscribe();
+  subscribed_ = wanted;
+}
+
+void NodeletBase::setUpDiagnostics(const std::string& hardware_id)
+{
+  diagnostics_.reset(new diagnostic_updater::Updater(getNodeHandle(), getPrivateNodeHandle(), getName()));
+  diagnostics_->setHardwareID(hardware_id);
+}
+
+void NodeletBase::addFrequencyStatus()
+{
+  frequency_.reset(new diagnostic_updater::FrequencyStatus(
+      diagnostic_updater::FrequencyStatusParam(&min_frequency_, &max_frequency_, 0.1, 10)));
+  diagnostics_->add(*frequency_);
+}
+
+void NodeletBase::startDiagnostics(double period_s, DiagnosticsClock clock)
+{
+  const auto update = [this]
+  {
+    try
+    {
+      diagnostics_->update();
+    }
+    catch (const std::exception& e)
+    {
+      NODELET_ERROR_THROTTLE(10.0, "%s: diagnostics failed: %s", label_.c_str(), e.what());
+    }
+  };
+  ros::NodeHandle& nh = getNodeHandle();
+  if (clock == DiagnosticsClock::kWallTime)
+    diagnostics_wall_timer_ =
+        nh.createWallTimer(ros::WallDuration(period_s), [update](const ros::WallTimerEvent&) { update(); });
+  else
+    diagnostics_timer_ = nh.createTimer(ros::Duration(period_s), [update](const ros::TimerEvent&) { update(); });
+}
+
+void NodeletBase::dropFrame(const std::string& why)
+{
+  ++frames_dropped_;
+  int suppressed = 0;
+  if (drop_log_.shouldLog(why, &suppressed))
+  {
+    const std::string note = suppressed > 0 ? " (" + std::to_string(suppressed) + " more like it suppressed)" : "";
+    NODELET_ERROR("%s: %s%s", label_.c_str(), why.c_str(), note.c_str());
+  }
+  std::lock_guard<std::mutex> lock(drop_mutex_);
+  last_drop_reason_ = why;
+}
+
+std::string NodeletBase::lastDropReason() const
+{
+  std::lock_guard<std::mutex> lock(drop_mutex_);
+  return last_drop_reason_;
+}
+
+void NodeletBase::stopCallbacks()
+{
+  diagnostics_timer_.stop();
+  diagnostics_wall_timer_.stop();
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  stopped_ = true;
+  if (subscribed_)
+    unsubscribe();
+  subscribed_ = false;
+}
+
+}  // namespace structured_light_stabilizer
