@@ -3,7 +3,7 @@
 SLS_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 SLS_WS="${SLS_WS:-$SLS_ROOT/.ws}"
 # Debian's ROS needs Debian's python3 (a pyenv shim earlier on PATH breaks
-# catkin and pluginlib's cmake: "No module named catkin_pkg"), SPEC §6.
+# catkin and pluginlib's cmake: "No module named catkin_pkg"), docs/building.md.
 export PATH="/usr/bin:/bin:$PATH"
 export ROS_HOME="${ROS_HOME:-$SLS_WS/ros_home}"
 export ROS_LOG_DIR="${ROS_LOG_DIR:-$ROS_HOME/log}"

@@ -1,4 +1,4 @@
-// scene_analysis: prints the study's optical and radiometric design (§2.1)
+// scene_analysis: prints the study's optical and radiometric design (docs/study.md §2.1)
 // computed from a YAML of inputs, next to the values the study states, and
 // writes the aperture sweep of its figure 2.2 as CSV and PNG.
 //

@@ -1,6 +1,6 @@
 // Physics shared by the parts of the scene analysis (scene_*.cpp): constants,
 // the camera equation, photo-electron counts, error reporting. Internal to
-// the sim library.
+// the sim library. § numbers are the study's sections (docs/study.md).
 #pragma once
 
 #include <functional>

@@ -1,5 +1,5 @@
 // The design table of the scene analysis: every quantity of the study's
-// §2.1 with its unit, the value the study prints and a note where the study
+// §2.1 (docs/study.md) with its unit, the value the study prints and a note where the study
 // differs (the notes are the findings; docs/scene_analysis.md summarises
 // them). One function per part of the study.
 #include <algorithm>

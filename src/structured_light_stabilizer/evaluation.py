@@ -1,7 +1,7 @@
 """Helpers to compare the pipeline's outputs with ground truth, shared by the
 demo monitor and the rostests.
 
-Conventions: clouds are the organised beam clouds of SPEC section 2 (x y z
+Conventions: clouds are the organised beam clouds of docs/interface.md (x y z
 float32, NaN where a beam has no point), returned as (N, 3) float64 arrays in
 beam order with the NaN rows kept, so that estimate and truth compare row by
 row. Transforms are geometry_msgs/Transform, as 4 x 4 homogeneous matrices;
