@@ -170,14 +170,14 @@ bool Simulator::intersect(double t, const Eigen::Vector3d& origin, const Eigen::
   return true;
 }
 
-SimFrame Simulator::render(double t) const
+SimFrame Simulator::render(double t, const FrameRequest& request) const
 {
   const Impl& im = *impl_;
   const SensorParams& sc = params_.sensor;
   const LightingParams& light = params_.lighting;
   SimFrame frame;
   frame.t = t;
-  frame.delta = motion(t);
+  frame.delta = request.arm_correction * motion(t);
   const sim::FrameGeometry g(im.T_rock_cam0 * frame.delta.inverse());
   const double sun = light.sun_level * LightingParams::kSunFullScaleDn * light.exposure;
 
@@ -185,7 +185,10 @@ SimFrame Simulator::render(double t) const
   std::vector<sim::Splat> splats;
   if (sun > 0.0)
     sim::addClutterSplats(im.clutter, im.rock, g, sc, sun, &splats);
+  const size_t clutter_splats = splats.size();
   sim::renderDots(params_, projector_, im.rock, g, &frame, &splats);
+  if (!request.projector_on)
+    splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
   const sim::SplatRows splat_rows(std::move(splats), sc.camera.height);
 
   const float* rock_samples =

@@ -583,3 +583,63 @@ TEST(Simulator, OliveMineralsDoNotLookLikeDots)
     EXPECT_LT(olive_mean[2], 0.5 * dot_mean[2]);
   }
 }
+
+TEST(Simulator, FrameRequestTurnsTheProjectorOffAndMovesTheCamera)
+{
+  sls::SimulatorParams c;
+  c.sensor.read_noise_dn = 0.0;
+  c.sensor.shot_noise = false;
+  c.keep_linear = true;
+  const sls::Simulator sim(c);
+  const sls::SimFrame on = sim.render(0.2);
+  sls::FrameRequest off_request;
+  off_request.projector_on = false;
+  const sls::SimFrame off = sim.render(0.2, off_request);
+  // Same truth, same rock; the only light that differs is the projector's.
+  int visible = 0;
+  for (size_t b = 0; b < on.points.size(); ++b)
+  {
+    ASSERT_EQ(on.visible[b], off.visible[b]);
+    if (!on.visible[b])
+      continue;
+    ++visible;
+    EXPECT_EQ(on.pixels[b], off.pixels[b]);
+    const cv::Point2d p = on.pixels[b];
+    const Moments m_on = channelMoments(on.linear, 1, p, 1);
+    const Moments m_off = channelMoments(off.linear, 1, p, 1);
+    EXPECT_GT(m_on.sum - m_off.sum, 0.5 * on.peak_dn[b]) << "beam " << b;
+  }
+  EXPECT_GT(visible, 50);
+  cv::Mat diff;
+  cv::absdiff(on.linear, off.linear, diff);
+  cv::Mat dot_free = diff.clone();
+  for (size_t b = 0; b < on.points.size(); ++b)
+    if (on.visible[b])
+      cv::circle(dot_free, on.pixels[b], 12, cv::Scalar::all(0), -1);
+  double worst = 0.0;
+  cv::minMaxLoc(dot_free.reshape(1), nullptr, &worst);
+  EXPECT_LT(worst, 1e-3) << "the projector-off frame differs away from the dots";
+
+  // An arm correction moves the camera on top of the disturbance.
+  sls::FrameRequest moved;
+  moved.arm_correction.translation() = Eigen::Vector3d(0.01, 0.0, 0.0);
+  const sls::SimFrame shifted = sim.render(0.2, moved);
+  EXPECT_TRUE(isIdentity(shifted.delta * on.delta.inverse() * moved.arm_correction.inverse(), 1e-12));
+  // Rock points move by +1 cm in x in the camera frame: the rock's texture
+  // shifts by fx * 0.01 / z in the image (the dots ride with the rig).
+  const cv::Rect centre(312, 312, 400, 400);
+  cv::Mat a, b;
+  cv::extractChannel(off.linear(centre), a, 2);
+  sls::SimFrame shifted_off = sim.render(0.2,
+                                         [&]
+                                         {
+                                           sls::FrameRequest r = moved;
+                                           r.projector_on = false;
+                                           return r;
+                                         }());
+  cv::extractChannel(shifted_off.linear(centre), b, 2);
+  const cv::Point2d shift = cv::phaseCorrelate(a, b);
+  const double expected = c.sensor.camera.fx * 0.01 / c.rock.distance_m;
+  EXPECT_NEAR(shift.x, expected, 0.1 * expected);
+  EXPECT_NEAR(shift.y, 0.0, 0.5);
+}

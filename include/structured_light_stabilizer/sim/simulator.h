@@ -74,13 +74,28 @@ struct SimFrame
   Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();  // p_cur = delta * p_ref, ref = t=0
 };
 
+// What a frame is asked for besides its time (the CameraDriver's strobed and
+// closed-loop modes).
+struct FrameRequest
+{
+  // false: the projector is off during this exposure (the ambient frame of a
+  // strobed pair): no dots in the image; the ground truth still says where
+  // each beam would hit.
+  bool projector_on = true;
+  // Camera motion on top of the disturbance, applied on the current-frame
+  // side: delta = arm_correction * motion(t) (p_cur = delta * p_ref). The
+  // closed loop's arm model accumulates it from the velocity commands.
+  Eigen::Isometry3d arm_correction = Eigen::Isometry3d::Identity();
+};
+
 class Simulator
 {
 public:
   // Throws std::invalid_argument with the reason when the params are invalid.
   explicit Simulator(const SimulatorParams& params);
 
-  SimFrame render(double t) const;
+  SimFrame render(double t) const { return render(t, FrameRequest()); }
+  SimFrame render(double t, const FrameRequest& request) const;
 
   // Replaces the parts of the params that do not change the scene (lighting,
   // noise, motion, keep_linear) without rebuilding it; for live tuning.
