@@ -2,9 +2,10 @@
 // PoseDelta nodelet's texture part, with message_filters' ExactTime policy.
 // A cloud whose image was dropped upstream goes on alone (geometry only) as
 // soon as a later cloud finds its image (ExactTime's drop signal), or when
-// the queue of unmatched stamps overflows; while no image has come for
-// kImageStallS seconds of stamps (images stopped, or not subscribed yet) a
-// cloud goes on alone at once.
+// the queue of unmatched stamps overflows (images stopped: each cloud then
+// waits for the queue size, none is lost while clouds keep coming). A cloud
+// never goes on without waiting for its image, even when it arrives first
+// after a long silence: the reference must be locked with its image.
 //
 // Order: ExactTime signals a match before it drops the older, unmatched
 // stamps. The signals are only collected during each add; they are then
@@ -37,9 +38,6 @@ public:
   // A cloud and its image (null: none, process the geometry alone).
   using Emit = std::function<void(const CloudPtr&, const ImagePtr&)>;
 
-  // Seconds of stamps without any image after which clouds stop waiting.
-  static constexpr double kImageStallS = 1.0;
-
   CloudImageMatcher() { reset(); }
 
   // Unmatched stamps kept (clouds waiting for their image, images for their
@@ -52,8 +50,6 @@ public:
 
   void addImage(const ImagePtr& image, const Emit& emit)
   {
-    if (newest_image_.isZero() || image->header.stamp > newest_image_)
-      newest_image_ = image->header.stamp;
     sync_->add<1>(image);
     flush(emit);
   }
@@ -62,7 +58,7 @@ public:
   // subscribed): the cloud goes on alone at once.
   void addCloud(const CloudPtr& cloud, bool with_images, const Emit& emit)
   {
-    if (!with_images || newest_image_.isZero() || (cloud->header.stamp - newest_image_).toSec() > kImageStallS)
+    if (!with_images)
     {
       emit(cloud, nullptr);
       return;
@@ -73,11 +69,7 @@ public:
 
   // Images stop (texture off, unsubscribed): forget the queue; the clouds
   // still in it (at most the queue size) get no pose.
-  void clearImages()
-  {
-    newest_image_ = ros::Time();
-    reset();
-  }
+  void clearImages() { reset(); }
 
 private:
   using Policy = message_filters::sync_policies::ExactTime<sensor_msgs::PointCloud2, sensor_msgs::Image>;
@@ -112,7 +104,6 @@ private:
   int queue_size_ = 5;
   std::unique_ptr<message_filters::Synchronizer<Policy>> sync_;
   std::vector<Pair> ready_;
-  ros::Time newest_image_;
 };
 
 }  // namespace structured_light_stabilizer

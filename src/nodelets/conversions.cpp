@@ -39,6 +39,13 @@ bool cameraModelFromInfo(const sensor_msgs::CameraInfo& info, CameraModel* model
     *error = "camera_info unusable: " + why;
     return false;
   }
+  // All-zero coefficients are no distortion whatever the model's name: one
+  // camera, one model (a consumer that compares models sees no change).
+  if (!full.hasDistortion())
+  {
+    full.distortion = DistortionModel::kNone;
+    full.D.clear();
+  }
   const SensorWindow window = sensorWindowFromInfo(info);
   why = window.validate(full.width, full.height);
   if (!why.empty())

@@ -33,7 +33,8 @@ namespace structured_light_stabilizer
 // is the ROI, in full-resolution pixels, binned; camera_model.h,
 // SensorWindow), so *model is the full model windowed: its width x height is
 // the image's. Distortion models: plumb_bob, rational_polynomial,
-// equidistant, or none ("" with zero D). Returns false with the reason when
+// equidistant, or none ("" with zero D; any model with all-zero D becomes
+// kNone with an empty D). Returns false with the reason when
 // the info is unusable (zero or NaN K, unknown distortion model, wrong D
 // size, a window that does not fit the sensor).
 bool cameraModelFromInfo(const sensor_msgs::CameraInfo& info, CameraModel* model, std::string* error);

@@ -297,12 +297,7 @@ private:
     // The model is of the binned ROI the image is (cameraModelFromInfo).
     if (model->width != static_cast<int>(msg.image_width) || model->height != static_cast<int>(msg.image_height))
     {
-      dropFrame("camera_info describes " + std::to_string(model->width) + "x" + std::to_string(model->height) +
-                " images (sensor " + std::to_string(info->width) + "x" + std::to_string(info->height) + ", binning " +
-                std::to_string(std::max(1u, info->binning_x)) + "x" + std::to_string(std::max(1u, info->binning_y)) +
-                ", ROI " + std::to_string(info->roi.width) + "x" + std::to_string(info->roi.height) +
-                ") but the spots come from a " + std::to_string(msg.image_width) + "x" +
-                std::to_string(msg.image_height) + " image; frame dropped (wrong camera_info?)");
+      dropFrame(sizeMismatch(*info, *model, msg));
       return false;
     }
     const double age = std::abs((msg.header.stamp - info->header.stamp).toSec());
@@ -315,6 +310,24 @@ private:
       stale_warned_ = true;
     }
     return true;
+  }
+
+  // Why a camera_info does not fit the spots' image (binning and ROI named
+  // when set: a different kind of problem for the drop log).
+  static std::string sizeMismatch(const sensor_msgs::CameraInfo& info, const CameraModel& model,
+                                  const CentroidArray& msg)
+  {
+    const auto size = [](uint32_t w, uint32_t h) { return std::to_string(w) + "x" + std::to_string(h); };
+    const std::string spots = " but the spots come from a " + size(msg.image_width, msg.image_height) + " image";
+    const SensorWindow w = sensorWindowFromInfo(info);
+    const int sensor_w = static_cast<int>(info.width), sensor_h = static_cast<int>(info.height);
+    if (w.isFullSensor(sensor_w, sensor_h))
+      return "camera_info is " + size(info.width, info.height) + spots + "; frame dropped (wrong camera_info?)";
+    const cv::Rect roi = w.roi(sensor_w, sensor_h);
+    return "camera_info is " + size(info.width, info.height) + " with binning " + size(w.binning_x, w.binning_y) +
+           " and ROI " + size(roi.width, roi.height) + "+" + std::to_string(roi.x) + "+" + std::to_string(roi.y) +
+           ", i.e. " + size(model.width, model.height) + " images," + spots +
+           "; frame dropped (wrong camera_info, or the window not applied to the image)";
   }
 
   // Non-finite centroids mean a broken upstream: drop the frame rather than

@@ -140,6 +140,25 @@ TEST(CameraInfoConversion, RefusesWhatItCannotUseNamingIt)
   }
 }
 
+// One camera, one model: all-zero coefficients are no distortion whatever
+// the model's name (PoseDelta drops its texture features on a model change).
+TEST(CameraInfoConversion, ZeroDistortionIsNoDistortion)
+{
+  for (const char* name : {"plumb_bob", "rational_polynomial", "equidistant", ""})
+  {
+    sensor_msgs::CameraInfo info = rationalInfo();
+    info.distortion_model = name;
+    info.D.assign(std::string(name) == "equidistant" ? 4 : std::string(name).empty() ? 0 : 8, 0.0);
+    if (std::string(name) == "plumb_bob")
+      info.D.resize(5);
+    CameraModel model;
+    std::string error;
+    ASSERT_TRUE(cameraModelFromInfo(info, &model, &error)) << name << ": " << error;
+    EXPECT_EQ(model.distortion, DistortionModel::kNone) << name;
+    EXPECT_TRUE(model.D.empty()) << name;
+  }
+}
+
 // pose_delta/pose: the pose is T^-1; its covariance is checked by sampling
 // left increments with the PoseDelta covariance, inverting each perturbed
 // transform, and measuring the spread of position (reference frame) and of

@@ -137,11 +137,11 @@ class CameraDriverSources(unittest.TestCase):
             "info_wrong_size": ["_source:=images", "_image_dir:=" + cls.image_dir, "_rate:=10",
                                 "_camera_info_url:=file://" + cls.calib_1024],
             "device_missing": ["_source:=device", "_device:=/dev/sls_no_such_camera"],
-            "images_mono16": ["_source:=images", "_image_dir:=" + cls.mono16_dir, "_rate:=10"],
-            "images_window": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=10",
+            "images_mono16": ["_source:=images", "_image_dir:=" + cls.mono16_dir, "_rate:=5"],
+            "images_window": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=5",
                               "_camera_info_url:=file://" + cls.calib_640, "_binning_x:=2", "_binning_y:=2",
                               "_roi_x_offset:=64", "_roi_y_offset:=32", "_roi_width:=320", "_roi_height:=240"],
-            "window_too_big": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=10",
+            "window_too_big": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=5",
                                "_roi_x_offset:=400", "_roi_y_offset:=0", "_roi_width:=320", "_roi_height:=240"],
             # Simulator parameters of the wrong type: named, defaults kept, the simulator runs.
             "sim_bad_params": ["_source:=sim", "_rate:=5", "_rock_distance:=far", "_projector_rows:=2.5",
@@ -240,13 +240,13 @@ class CameraDriverSources(unittest.TestCase):
         self.assertEqual(self.errors_of("images_ok"), [])
 
     def test_mono16_images_are_published_as_read(self):
-        images, _ = self.check_stream("images_mono16", 320, 240, 10.0, encoding="mono16")
+        images, _ = self.check_stream("images_mono16", 320, 240, 5.0, encoding="mono16")
         img = images[0]
         data = np.frombuffer(img.data, np.dtype(np.uint16).newbyteorder(">" if img.is_bigendian else "<"))
         self.assertTrue(np.array_equal(data.reshape(240, 320), self.mono16), "mono16 values changed on the way")
 
     def test_sensor_window_bins_the_roi(self):
-        images, infos = self.check_stream("images_window", 160, 120, 10.0, info_size=(640, 480))
+        images, infos = self.check_stream("images_window", 160, 120, 5.0, info_size=(640, 480))
         info = infos[0]
         self.assertEqual((info.binning_x, info.binning_y), (2, 2))
         self.assertEqual((info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height), (64, 32, 320, 240))
