@@ -243,7 +243,7 @@ StabilizationCommand StabilizationController::update(const StabilizationEstimate
     e[a] = active[a] ? e[a] : 0.0;
   c.error = e;
   const Vector6d raw = law(e, active, dt);
-  c.twist = limit(raw, now);
+  c.twist = limit(raw, active, now);
   // Anti-windup (conditional integration): an axis whose command the limits
   // cut does not keep what it just integrated in the direction of the cut.
   for (int a = 0; a < 6; ++a)
@@ -335,14 +335,17 @@ Vector6d StabilizationController::law(const Vector6d& e, const std::array<bool, 
   return u;
 }
 
-// Velocity limits, then the rate limit from the last command sent.
-Vector6d StabilizationController::limit(const Vector6d& raw, double now) const
+// Velocity limits, then the rate limit from the last command sent; an axis
+// not commanded now is zero at once (it ramps back from zero).
+Vector6d StabilizationController::limit(const Vector6d& raw, const std::array<bool, 6>& active, double now) const
 {
   Vector6d u;
   u.head<3>() = clampNorm(raw.head<3>(), params_.max_linear_velocity_mps);
   u.tail<3>() = clampNorm(raw.tail<3>(), params_.max_angular_velocity_radps);
   const double dt = std::max(0.0, now - last_command_time_);
-  const Vector6d& prev = last_command_.twist;
+  Vector6d prev = last_command_.twist;
+  for (int a = 0; a < 6; ++a)
+    prev[a] = active[a] ? prev[a] : 0.0;
   u.head<3>() = prev.head<3>() + clampNorm(u.head<3>() - prev.head<3>(), params_.max_linear_acceleration_mps2 * dt);
   u.tail<3>() = prev.tail<3>() + clampNorm(u.tail<3>() - prev.tail<3>(), params_.max_angular_acceleration_radps2 * dt);
   return u;

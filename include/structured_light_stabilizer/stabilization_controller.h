@@ -33,7 +33,8 @@
 // beyond max_jump_* between two estimates (a re-lock or an outlier; the next
 // estimate is compared with the new one). Axis gating: an axis whose 1-sigma
 // exceeds max_sigma_*, that the status names unobservable, or that is
-// disabled is never commanded (zero, its integrator frozen).
+// disabled is never commanded (zero at once, not ramped down; its integrator
+// frozen).
 //
 // Times are seconds on one clock (ROS time in the nodelet). Nothing throws
 // except setParams() (std::invalid_argument with the reason). Not
@@ -163,7 +164,7 @@ private:
   bool jumped(const Vector6d& measured, std::string* why);
   Vector6d predictedError(const Vector6d& measured, double stamp, double now) const;
   Vector6d law(const Vector6d& error, const std::array<bool, 6>& active, double dt);
-  Vector6d limit(const Vector6d& raw, double now) const;
+  Vector6d limit(const Vector6d& raw, const std::array<bool, 6>& active, double now) const;
   void remember(const Vector6d& twist, double now);
 
   struct Sent

@@ -186,6 +186,20 @@ TEST(StabilizationController, NeverCommandsAnAxisReportedUnobservable)
   EXPECT_EQ(cmd.twist[1], 0.0);
   EXPECT_GT(cmd.twist[0], 0.0);
 
+  // With the rate limits in force, an axis that becomes unobservable is zero
+  // at once, not ramped down.
+  StabilizationController ramped{StabilizationControllerParams()};
+  double t = 10.0;
+  StabilizationCommand before = feed(&ramped, &t, 30, Eigen::Vector3d(0.003, 0.003, 0.003));
+  ASSERT_GT(before.twist[0], 0.0);
+  e.stamp = t + kFrame;
+  e.covariance(0, 0) = 0.05 * 0.05;
+  cmd = ramped.update(e, e.stamp + 0.05);
+  EXPECT_EQ(cmd.twist[0], 0.0);
+  EXPECT_EQ(cmd.twist[1], 0.0);
+  EXPECT_EQ(cmd.twist[5], 0.0);
+  EXPECT_GT(cmd.twist[2], 0.0);
+
   // And with command_observable_axes off, an unobservable estimate holds all.
   StabilizationControllerParams strict = plainParams();
   strict.command_observable_axes = false;
