@@ -5,8 +5,9 @@ line exactly in this form
 
   stabilization: open-loop A mm B deg RMS, closed-loop C mm D deg RMS
 
-writes the plot (~plot, PNG) and the figures (~stats_file, YAML; ~stats,
-diagnostic_msgs/DiagnosticStatus, latched), then ends the launch (~exit).
+writes the plot (~plot, PNG), the figures (~stats_file, YAML; ~stats,
+diagnostic_msgs/DiagnosticStatus, latched) and the time series (~series_file,
+CSV), then ends the launch (~exit).
 
 A, B: RMS of the translation norm and of the rotation angle of
 sim/ground_truth/disturbance, the disturbance's own offset from the locked pose
@@ -97,6 +98,7 @@ class Monitor:
         self.duration = float(rospy.get_param("~duration", 30.0))
         self.plot_path = rospy.get_param("~plot", "stabilization.png")
         self.stats_file = rospy.get_param("~stats_file", "")
+        self.series_file = rospy.get_param("~series_file", "")
         self.exit = bool(rospy.get_param("~exit", True))
         self.controller = bool(rospy.get_param("~controller", True))
         self.lock = threading.Lock()
@@ -195,6 +197,11 @@ class Monitor:
                 rospy.loginfo("stabilize_monitor: plot written to %s", path)
             except Exception as e:  # a plot that cannot be written must not lose the figures
                 rospy.logerr("stabilize_monitor: cannot write the plot %s: %s", path, e)
+        if self.series_file:
+            t, closed, open_ = data[:3]
+            np.savetxt(self.series_file, np.column_stack([t, closed, open_]), delimiter=",",
+                       header="t_s,closed_tx,closed_ty,closed_tz,closed_rx,closed_ry,closed_rz,"
+                              "open_tx,open_ty,open_tz,open_rx,open_ry,open_rz (m, rad)")
         if self.stats_file:
             with open(self.stats_file, "w") as out:
                 yaml.safe_dump({k: float(v) for k, v in figures.items()}, out)

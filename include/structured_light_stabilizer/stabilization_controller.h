@@ -60,11 +60,11 @@ struct StabilizationControllerParams
   // out) the crossover is about kp rad/s; with the loop's dead time tau
   // (exposure to arm motion, ~0.1 s at 30 Hz) the phase margin is about
   // 90 deg - kp * tau (docs/stabilization.md, "Gains").
-  double kp_translation = 5.0;
-  double ki_translation = 5.0;
+  double kp_translation = 4.0;
+  double ki_translation = 4.0;
   double kd_translation = 0.0;
-  double kp_rotation = 5.0;
-  double ki_rotation = 5.0;
+  double kp_rotation = 4.0;
+  double ki_rotation = 4.0;
   double kd_rotation = 0.0;
   double derivative_filter_s = 0.05;  // time constant of the derivative's low-pass
   // Output limits (norm of each group) and rate limits (norm of the change

@@ -152,3 +152,23 @@ class Figure:
             ax.draw()
         if not cv2.imwrite(path, self.canvas):
             raise IOError("cannot write %s" % path)
+
+
+def rejection_curve(csv_path, png_path, title="rejection curve of the loop model (benchmark_stabilization)"):
+    """Draws the CSV of benchmark_stabilization (frequency_hz,
+    translation_ratio, rotation_ratio) as |S(f)| on log-log axes."""
+    data = np.loadtxt(csv_path, delimiter=",", skiprows=1, ndmin=2)
+    fig = Figure(900, 560, title)
+    ax = fig.add((0, 0, 900, 520), "residual / disturbance RMS for a sine", "frequency (Hz)", "|S|", xlog=True, ylog=True)
+    ax.plot(data[:, 0], data[:, 1], "translation")
+    ax.plot(data[:, 0], data[:, 2], "rotation")
+    ax.hline(1.0 / math.sqrt(2.0), "0.71 (bandwidth)")
+    ax.hline(1.0, "1: no rejection")
+    fig.save(png_path)
+
+
+if __name__ == "__main__":
+    import sys
+    if len(sys.argv) != 3:
+        sys.exit("usage: python3 -m structured_light_stabilizer.plot CURVE.csv OUT.png")
+    rejection_curve(sys.argv[1], sys.argv[2])

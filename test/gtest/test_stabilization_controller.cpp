@@ -36,6 +36,7 @@ StabilizationEstimate estimate(double stamp, const Eigen::Vector3d& t,
 StabilizationControllerParams plainParams()
 {
   StabilizationControllerParams p;
+  p.kp_translation = p.kp_rotation = 5.0;
   p.ki_translation = p.ki_rotation = 0.0;
   p.max_linear_acceleration_mps2 = p.max_angular_acceleration_radps2 = 1e6;  // no rate limit
   return p;
