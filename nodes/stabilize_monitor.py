@@ -33,9 +33,11 @@ import rospy
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped
+from std_srvs.srv import Trigger
 from structured_light_stabilizer.msg import PoseDelta
 
 SEGMENT = 256  # samples per Welch segment (8.5 s at 30 Hz: 0.12 Hz resolution)
+LOCK_WAIT_S = 15.0  # estimates flow but no truth from a lock this long: lock again
 
 
 def vec6(msg):
@@ -116,6 +118,8 @@ class Monitor:
         rospy.Subscriber("stabilizer/cmd_twist", TwistStamped, self.on_command, queue_size=50)
         rospy.Subscriber("stabilizer/error", TwistStamped, self.on_error, queue_size=50)
         rospy.Subscriber("pose_delta", PoseDelta, self.on_pose, queue_size=50)
+        self.started = rospy.Time.now()
+        self.relocked = False
         rospy.Timer(rospy.Duration(0.5), self.check_end)
 
     def on_truth(self, msg, which):
@@ -142,12 +146,26 @@ class Monitor:
 
     def check_end(self, _event):
         with self.lock:
+            waiting = self.t0 is None and self.estimates > 0
+        if waiting and not self.relocked and (rospy.Time.now() - self.started).to_sec() > LOCK_WAIT_S:
+            self.relock()
+        with self.lock:
             if self.finished or self.t0 is None or not self.truth:
                 return
             if max(self.truth) - self.t0 < self.duration:
                 return
             self.finished = True
         self.finish()
+
+    def relock(self):
+        """The simulator learns the locked frame from the PoseDelta's status;
+        if that message went by before it listened, lock again."""
+        self.relocked = True
+        rospy.logwarn("stabilize_monitor: no truth from a locked pose after %.0f s; asking pose_delta/lock", LOCK_WAIT_S)
+        try:
+            rospy.ServiceProxy("pose_delta/lock", Trigger)()
+        except (rospy.ServiceException, rospy.ROSException) as e:
+            rospy.logerr("stabilize_monitor: pose_delta/lock failed: %s", e)
 
     def series(self):
         with self.lock:

@@ -56,6 +56,12 @@ bool SimClosedLoop::setUp(const SourceContext& ctx)
 {
   ctx_ = ctx;
   const ParamReader read(ctx.pnh, ctx.error);
+  // Opt-in: otherwise the subscription to pose_delta would wake the whole
+  // lazy pipeline in every simulator run.
+  bool closed_loop = false;
+  read.boolean("closed_loop", &closed_loop);
+  if (!closed_loop)
+    return true;
   ArmModelParams p;
   read.number("arm_bandwidth", &p.bandwidth_hz);
   read.number("arm_delay", &p.delay_s);

@@ -2,6 +2,8 @@
 // (docs/stabilization.md): the arm model driven by the velocity commands, the
 // disturbance's parameters, and the truth of the stabilisation.
 //
+// All of it only with ~closed_loop:=true (config/stabilize.yaml); else the
+// camera follows the disturbance alone and nothing is subscribed.
 // - Subscribes ~arm_command_topic (default stabilizer/cmd_twist,
 //   geometry_msgs/TwistStamped, camera-frame body twist as moveit_servo's
 //   delta_twist_cmds; empty = no arm) and feeds the ArmModel
