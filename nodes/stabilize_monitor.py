@@ -7,7 +7,8 @@ line exactly in this form
 
 writes the plot (~plot, PNG), the figures (~stats_file, YAML; ~stats,
 diagnostic_msgs/DiagnosticStatus, latched) and the time series (~series_file,
-CSV), then ends the launch (~exit).
+CSV), then ends the launch (~exit) as Ctrl-C would: SIGINT to its roslaunch,
+a clean exit with status 0.
 
 A, B: RMS of the translation norm and of the rotation angle of
 sim/ground_truth/disturbance, the disturbance's own offset from the locked pose
@@ -35,6 +36,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped
 from std_srvs.srv import Trigger
 from structured_light_stabilizer.msg import PoseDelta
+from structured_light_stabilizer.roslaunch_end import end_launch
 
 SEGMENT = 256  # samples per Welch segment (8.5 s at 30 Hz: 0.12 Hz resolution)
 LOCK_WAIT_S = 15.0  # estimates flow but no truth from a lock this long: lock again
@@ -203,9 +205,6 @@ class Monitor:
 
     def finish(self):
         figures, data = self.figures()
-        print("stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS" % (
-            figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
-            figures["closed_rotation_deg"]), flush=True)
         if self.plot_path:
             path = self.plot_path
             if not os.path.isabs(path):
@@ -226,7 +225,12 @@ class Monitor:
         status = DiagnosticStatus(name="stabilize_monitor", level=DiagnosticStatus.OK, message="final figures")
         status.values = [KeyValue(k, repr(float(v))) for k, v in figures.items()]
         self.stats_pub.publish(status)
+        # The summary, last.
+        print("stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS" % (
+            figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
+            figures["closed_rotation_deg"]), flush=True)
         if self.exit:
+            end_launch()
             rospy.signal_shutdown("duration reached")
 
 
