@@ -63,9 +63,9 @@ std::array<bool, 6> namedUnobservable(const std::string& status)
   if (at == std::string::npos)
     return named;
   // The names run up to the parenthesis that says why.
-  const auto end = status.find('(', at);
-  std::istringstream words(status.substr(at + std::string(kUnobservablePrefix).size(),
-                                         end == std::string::npos ? std::string::npos : end - at));
+  const auto from = at + std::string(kUnobservablePrefix).size();
+  const auto end = status.find('(', from);
+  std::istringstream words(status.substr(from, end == std::string::npos ? std::string::npos : end - from));
   std::string w;
   while (words >> w)
     for (int a = 0; a < 6; ++a)

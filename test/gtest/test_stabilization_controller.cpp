@@ -180,8 +180,16 @@ TEST(StabilizationController, NeverCommandsAnAxisReportedUnobservable)
   EXPECT_EQ(cmd.twist[0], 0.0);
   EXPECT_EQ(cmd.twist[5], 0.0);
 
+  // Only the names before the parenthesis count (the reason may contain anything).
+  e.stamp += kFrame;
+  e.status = "unobservable: rz (texture unused: tx ty)";
+  cmd = c.update(e, e.stamp + 0.05);
+  EXPECT_GT(cmd.twist[0], 0.0);
+  EXPECT_GT(cmd.twist[1], 0.0);
+  EXPECT_EQ(cmd.twist[5], 0.0);
+
   // Large sigma alone on a valid estimate: not commanded either.
-  StabilizationEstimate v = estimate(1.0 + 2 * kFrame, Eigen::Vector3d(0.003, 0.003, 0.003));
+  StabilizationEstimate v = estimate(1.0 + 3 * kFrame, Eigen::Vector3d(0.003, 0.003, 0.003));
   v.covariance(1, 1) = 0.01 * 0.01;
   cmd = c.update(v, v.stamp + 0.05);
   EXPECT_EQ(cmd.twist[1], 0.0);
@@ -194,6 +202,7 @@ TEST(StabilizationController, NeverCommandsAnAxisReportedUnobservable)
   StabilizationCommand before = feed(&ramped, &t, 30, Eigen::Vector3d(0.003, 0.003, 0.003));
   ASSERT_GT(before.twist[0], 0.0);
   e.stamp = t + kFrame;
+  e.status = "unobservable: tx ty rz (smooth or flat surface, texture off)";
   e.covariance(0, 0) = 0.05 * 0.05;
   cmd = ramped.update(e, e.stamp + 0.05);
   EXPECT_EQ(cmd.twist[0], 0.0);
