@@ -144,9 +144,9 @@ public:
   {
     SimulatorParams c;
     readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
-    readDisturbanceParams(ctx_.pnh, ctx_.error, &c.motion);  // the closed loop's (sim_closed_loop.h)
     const std::string ratio_source = readLighting(&c);
     duration_s_ = ctx_.pnh.param("duration", 0.0);
+    readDisturbanceParams(ctx_.pnh, ctx_.error, &c.motion);  // the closed loop's (sim_closed_loop.h)
     useUrlCalibration(&c);
     if (!build(c, ratio_source))
       return false;
