@@ -22,6 +22,7 @@
 #include "conversions.h"
 #include "frame_source.h"
 #include "param_reader.h"
+#include "sim_closed_loop.h"
 
 namespace structured_light_stabilizer
 {
@@ -145,6 +146,7 @@ public:
     readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
     const std::string ratio_source = readLighting(&c);
     duration_s_ = ctx_.pnh.param("duration", 0.0);
+    readDisturbanceParams(ctx_.pnh, ctx_.error, &c.motion);  // the closed loop's (sim_closed_loop.h)
     useUrlCalibration(&c);
     if (!build(c, ratio_source))
       return false;
@@ -158,6 +160,7 @@ public:
           "~lazy: frames are rendered only while someone subscribes to the image or the ground truth "
           "(simulated time runs on regardless)");
     writeProjectorCalibration();
+    closed_loop_.setUp(ctx_);  // without a usable arm the camera just ignores commands
     return true;
   }
 
@@ -182,12 +185,15 @@ public:
     if (!ctx_.stamp(&frame->stamp))
       return {GrabStatus::kSkip, ""};
     ++index_;
+    // The arm moves whether or not this frame is rendered.
+    FrameRequest request;
+    request.arm_correction = closed_loop_.correctionAt(t, frame->stamp);
     if (lazy_ && ctx_.image_subscribers() == 0 && pub_gt_points_.getNumSubscribers() == 0 &&
         pub_gt_pose_.getNumSubscribers() == 0 && pub_gt_spots_.getNumSubscribers() == 0)
       return {GrabStatus::kSkip, ""};
     rendered_by_ = simulator();
     const auto t0 = std::chrono::steady_clock::now();
-    rendered_ = rendered_by_->render(t);
+    rendered_ = rendered_by_->render(t, request);
     frame->processing_ms = millisecondsSince(t0);
     frame->image = rendered_.image;
     return {GrabStatus::kFrame, ""};
@@ -223,6 +229,7 @@ private:
   double t_base_ = 0.0, rate_base_ = 0.0;
   SimFrame rendered_;
   std::shared_ptr<const Simulator> rendered_by_;
+  SimClosedLoop closed_loop_;  // the arm driven by stabilizer/cmd_twist, the truth offsets
 };
 
 // The dot-versus-sun brightness comes from the scene analysis unless
@@ -345,6 +352,7 @@ void SimSource::published(const std_msgs::Header& header)
   pose->status = "ground truth, simulated t = " + std::to_string(frame.t) + " s";
   pub_gt_pose_.publish(pose);
   pub_gt_spots_.publish(spots);
+  closed_loop_.published(header, frame.delta, rendered_by_->motion(frame.t));
 }
 
 void SimSource::reconfigure(CameraDriverConfig& config)

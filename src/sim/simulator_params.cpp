@@ -3,6 +3,8 @@
 #include <cmath>
 #include <sstream>
 
+#include "rig_motion.h"
+
 namespace structured_light_stabilizer
 {
 
@@ -88,6 +90,7 @@ void checkMotion(const RigMotionParams& motion, std::ostringstream& why)
       !finiteNonNegative(motion.return_period_s) || !motion.drift_velocity_mps.allFinite() ||
       !motion.drift_angular_velocity_radps.allFinite() || !motion.step_translation_m.allFinite())
     why << "motion amplitudes, frequency and periods must be finite and >= 0; ";
+  why << sim::rigMotionProblems(motion);  // the closed loop's disturbance (rig_motion.cpp)
 }
 
 void checkClutter(const ClutterParams& clutter, std::ostringstream& why)

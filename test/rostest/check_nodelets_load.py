@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Checks that the manager loaded all four nodelets without an error, that its
+"""Checks that the manager loaded all five nodelets (the four of the pipeline
+and the StabilizationController) without an error, that its
 services answer, that each standalone node is up, and that rosmsg knows the
 package's three messages with exactly the fields of docs/interface.md."""
 import subprocess
@@ -14,7 +15,7 @@ from nodelet.srv import NodeletList
 from rosgraph_msgs.msg import Log
 
 PKG = "structured_light_stabilizer"
-NODELETS = ["/camera_driver", "/spot_detector", "/triangulator", "/pose_delta"]
+NODELETS = ["/camera_driver", "/spot_detector", "/triangulator", "/pose_delta", "/stabilization_controller"]
 STANDALONE = ["/standalone/" + n.strip("/") for n in NODELETS]
 
 EXPECTED_FIELDS = {

@@ -31,6 +31,26 @@ struct RigMotionParams
   // When > 0, the motion is periodic with this period and returns exactly to
   // the reference pose at every multiple of it (used by the return-to-identity test).
   double return_period_s = 0.0;
+
+  // ---- The closed loop's disturbance (docs/stabilization.md, src/sim/rig_motion.cpp).
+  // Vibration: band-limited random motion, RMS per axis, its power spectral
+  // density proportional to f^vibration_spectrum_slope between the two
+  // frequencies (min = max: one sine of that RMS); phases and frequencies
+  // drawn from `seed`.
+  double vibration_translation_rms_m = 0.0;
+  double vibration_rotation_rms_rad = 0.0;
+  double vibration_min_hz = 1.0;
+  double vibration_max_hz = 8.0;
+  double vibration_spectrum_slope = 0.0;
+  // Each step also rotates by this, and ramps over step_rise_s (raised
+  // cosine; 0 = instantaneous).
+  Eigen::Vector3d step_rotation_rad = Eigen::Vector3d::Zero();
+  double step_rise_s = 0.0;
+  // The rotations of the motion turn the camera about this point (reference
+  // camera frame, m; zero = the camera centre), e.g. a wheel's contact patch
+  // when the rover tilts.
+  Eigen::Vector3d pivot_m = Eigen::Vector3d::Zero();
+  uint32_t seed = 1;
 };
 
 struct RockParams

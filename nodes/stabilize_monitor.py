@@ -1,0 +1,268 @@
+#!/usr/bin/env python3
+"""Stabilisation monitor (stabilize.launch, docs/stabilization.md): records the
+simulator's truth of the closed loop and, after ~duration seconds, prints one
+line exactly in this form
+
+  stabilization: open-loop A mm B deg RMS, closed-loop C mm D deg RMS
+
+writes the plot (~plot, PNG), the figures (~stats_file, YAML; ~stats,
+diagnostic_msgs/DiagnosticStatus, latched) and the time series (~series_file,
+CSV), then ends the launch (~exit) as Ctrl-C would: SIGINT to its roslaunch,
+a clean exit with status 0.
+
+A, B: RMS of the translation norm and of the rotation angle of
+sim/ground_truth/disturbance, the disturbance's own offset from the locked pose
+(what the camera does with the arm still: the open loop of the same seed, same
+simulated times and lock). C, D: the same of sim/ground_truth/offset, the
+camera's true offset from the locked pose with the arm commanded (with
+controller:=false the arm stays still and C, D equal A, B). Both topics start
+at the frame after the PoseDelta's lock; time counts from the first of them.
+
+Also measured: the latency from exposure to command (stabilizer/error carries
+the estimate's stamp and is published with the command), the commands and
+holds, and the loop's sensitivity |S(f)|: the residual's spectrum over the
+disturbance's (Welch averages), with the bandwidth where it first reaches
+1/sqrt(2). Where the disturbance has little power the ratio is dominated by
+the estimate's noise, so it is drawn only where the disturbance stands out.
+"""
+import math
+import os
+import threading
+
+import numpy as np
+import rospy
+import yaml
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import TwistStamped
+from std_srvs.srv import Trigger
+from structured_light_stabilizer.msg import PoseDelta
+from structured_light_stabilizer.roslaunch_end import end_launch
+
+SEGMENT = 256  # samples per Welch segment (8.5 s at 30 Hz: 0.12 Hz resolution)
+LOCK_WAIT_S = 15.0  # estimates flow but no truth from a lock this long: lock again
+
+
+def vec6(msg):
+    t, w = msg.twist.linear, msg.twist.angular
+    return [t.x, t.y, t.z, w.x, w.y, w.z]
+
+
+def rms(rows):
+    """RMS of the translation norm (mm) and of the rotation angle (deg)."""
+    a = np.asarray(rows, float).reshape(-1, 6)
+    if len(a) == 0:
+        return float("nan"), float("nan")
+    return (1e3 * math.sqrt(np.mean(np.sum(a[:, :3] ** 2, axis=1))),
+            math.degrees(math.sqrt(np.mean(np.sum(a[:, 3:] ** 2, axis=1)))))
+
+
+def welch(x, rate):
+    """One-sided power spectral density of each column of x (Hann, 50 % overlap)."""
+    n = min(SEGMENT, len(x))
+    window = np.hanning(n)
+    scale = rate * np.sum(window ** 2)
+    psd, count = 0.0, 0
+    for start in range(0, len(x) - n + 1, max(1, n // 2)):
+        seg = x[start:start + n] - np.mean(x[start:start + n], axis=0)
+        psd = psd + np.abs(np.fft.rfft(seg * window[:, None], axis=0)) ** 2 / scale
+        count += 1
+    return np.fft.rfftfreq(n, 1.0 / rate), 2.0 * psd / max(1, count)
+
+
+def sensitivity(open_rows, closed_rows, rate):
+    """Frequencies, the disturbance's and the residual's PSD (translation
+    axes summed, m^2/Hz), |S| where the disturbance stands out (else NaN), and
+    the first frequency where |S| reaches 1/sqrt(2)."""
+    o, c = np.asarray(open_rows, float), np.asarray(closed_rows, float)
+    if len(o) < 64:
+        return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), float("nan")
+    f, po = welch(o[:, :3], rate)
+    _, pc = welch(c[:, :3], rate)
+    po, pc = po.sum(axis=1), pc.sum(axis=1)
+    # The disturbance stands out where it is well above the residual's floor
+    # at high frequency (estimate noise, unrejected vibration).
+    floor = np.median(pc[len(pc) // 2:]) if len(pc) > 4 else 0.0
+    s = np.where(po > 10.0 * floor, np.sqrt(pc / np.maximum(po, 1e-30)), np.nan)
+    s[0] = np.nan
+    bandwidth = float("nan")
+    for i in range(1, len(s)):
+        if np.isfinite(s[i]) and s[i] >= 1.0 / math.sqrt(2.0):
+            j = i - 1
+            if np.isfinite(s[j]) and s[j] > 0:  # interpolate on log f
+                u = (1.0 / math.sqrt(2.0) - s[j]) / (s[i] - s[j])
+                bandwidth = math.exp(math.log(max(f[j], 1e-6)) + u * (math.log(f[i]) - math.log(max(f[j], 1e-6))))
+            else:
+                bandwidth = float(f[i])
+            break
+    return f, po, pc, s, bandwidth
+
+
+class Monitor:
+    def __init__(self):
+        self.duration = float(rospy.get_param("~duration", 30.0))
+        self.plot_path = rospy.get_param("~plot", "stabilization.png")
+        self.stats_file = rospy.get_param("~stats_file", "")
+        self.series_file = rospy.get_param("~series_file", "")
+        self.exit = bool(rospy.get_param("~exit", True))
+        self.controller = bool(rospy.get_param("~controller", True))
+        self.lock = threading.Lock()
+        self.truth = {}  # stamp -> [offset or None, disturbance or None]
+        self.t0 = None
+        self.latency = []  # s, exposure to command
+        self.commands = 0
+        self.zero_commands = 0
+        self.estimates = 0
+        self.valid = 0
+        self.finished = False
+        self.stats_pub = rospy.Publisher("~stats", DiagnosticStatus, queue_size=1, latch=True)
+        rospy.Subscriber("sim/ground_truth/offset", TwistStamped, self.on_truth, 0, queue_size=50)
+        rospy.Subscriber("sim/ground_truth/disturbance", TwistStamped, self.on_truth, 1, queue_size=50)
+        rospy.Subscriber("stabilizer/cmd_twist", TwistStamped, self.on_command, queue_size=50)
+        rospy.Subscriber("stabilizer/error", TwistStamped, self.on_error, queue_size=50)
+        rospy.Subscriber("pose_delta", PoseDelta, self.on_pose, queue_size=50)
+        self.started = rospy.Time.now()
+        self.relocked = False
+        rospy.Timer(rospy.Duration(0.5), self.check_end)
+
+    def on_truth(self, msg, which):
+        with self.lock:
+            stamp = msg.header.stamp.to_sec()
+            self.truth.setdefault(stamp, [None, None])[which] = vec6(msg)
+            if self.t0 is None:
+                self.t0 = stamp
+                rospy.loginfo("stabilize_monitor: truth from the locked pose flowing; %.0f s to go", self.duration)
+
+    def on_command(self, msg):
+        with self.lock:
+            self.commands += 1
+            self.zero_commands += int(not any(vec6(msg)))
+
+    def on_error(self, msg):
+        with self.lock:
+            self.latency.append((rospy.Time.now() - msg.header.stamp).to_sec())
+
+    def on_pose(self, msg):
+        with self.lock:
+            self.estimates += 1
+            self.valid += int(msg.valid)
+
+    def check_end(self, _event):
+        with self.lock:
+            waiting = self.t0 is None and self.estimates > 0
+        if waiting and not self.relocked and (rospy.Time.now() - self.started).to_sec() > LOCK_WAIT_S:
+            self.relock()
+        with self.lock:
+            if self.finished or self.t0 is None or not self.truth:
+                return
+            if max(self.truth) - self.t0 < self.duration:
+                return
+            self.finished = True
+        self.finish()
+
+    def relock(self):
+        """The simulator learns the locked frame from the PoseDelta's status;
+        if that message went by before it listened, lock again."""
+        self.relocked = True
+        rospy.logwarn("stabilize_monitor: no truth from a locked pose after %.0f s; asking pose_delta/lock", LOCK_WAIT_S)
+        try:
+            rospy.ServiceProxy("pose_delta/lock", Trigger)()
+        except (rospy.ServiceException, rospy.ROSException) as e:
+            rospy.logerr("stabilize_monitor: pose_delta/lock failed: %s", e)
+
+    def series(self):
+        with self.lock:
+            rows = [(s, v[0], v[1]) for s, v in sorted(self.truth.items()) if v[0] is not None and v[1] is not None]
+        rows = [r for r in rows if r[0] - self.t0 <= self.duration]
+        t = np.array([r[0] - self.t0 for r in rows])
+        return t, np.array([r[1] for r in rows]).reshape(-1, 6), np.array([r[2] for r in rows]).reshape(-1, 6)
+
+    def figures(self):
+        t, closed, open_ = self.series()
+        rate = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else 30.0
+        a, b = rms(open_)
+        c, d = rms(closed)
+        f, po, pc, s, bandwidth = sensitivity(open_, closed, rate)
+        if not self.controller:
+            s, bandwidth = np.full_like(s, np.nan), float("nan")  # no loop: |S| = 1 by construction
+        # The largest residual of any frame after the first second (a step's
+        # transient, the estimate's noise, the vibration).
+        late = closed[t >= 1.0] if len(t) else closed
+        max_t = 1e3 * float(np.max(np.linalg.norm(late[:, :3], axis=1))) if len(late) else float("nan")
+        max_r = math.degrees(float(np.max(np.linalg.norm(late[:, 3:], axis=1)))) if len(late) else float("nan")
+        with self.lock:
+            lat = np.array(self.latency) if self.latency else np.array([float("nan")])
+            figures = {
+                "open_translation_mm": a, "open_rotation_deg": b, "closed_translation_mm": c, "closed_rotation_deg": d,
+                "translation_ratio": c / a if a > 0 else float("nan"), "rotation_ratio": d / b if b > 0 else float("nan"),
+                "frames": float(len(t)), "frame_rate_hz": rate, "seconds": float(t[-1]) if len(t) else 0.0,
+                "latency_median_ms": 1e3 * float(np.median(lat)), "latency_p95_ms": 1e3 * float(np.percentile(lat, 95)),
+                "commands": float(self.commands), "zero_commands": float(self.zero_commands),
+                "estimates": float(self.estimates),
+                "valid_fraction": self.valid / self.estimates if self.estimates else float("nan"),
+                "closed_max_translation_mm": max_t, "closed_max_rotation_deg": max_r,
+                "bandwidth_hz": bandwidth, "controller": float(self.controller)}
+        return figures, (t, closed, open_, f, po, pc, s)
+
+    def finish(self):
+        figures, data = self.figures()
+        if self.plot_path:
+            path = self.plot_path
+            if not os.path.isabs(path):
+                path = os.path.join(os.environ.get("ROS_HOME", os.path.expanduser("~/.ros")), path)
+            try:
+                draw(path, figures, *data)
+                rospy.loginfo("stabilize_monitor: plot written to %s", path)
+            except Exception as e:  # a plot that cannot be written must not lose the figures
+                rospy.logerr("stabilize_monitor: cannot write the plot %s: %s", path, e)
+        if self.series_file:
+            t, closed, open_ = data[:3]
+            np.savetxt(self.series_file, np.column_stack([t, closed, open_]), delimiter=",",
+                       header="t_s,closed_tx,closed_ty,closed_tz,closed_rx,closed_ry,closed_rz,"
+                              "open_tx,open_ty,open_tz,open_rx,open_ry,open_rz (m, rad)")
+        if self.stats_file:
+            with open(self.stats_file, "w") as out:
+                yaml.safe_dump({k: float(v) for k, v in figures.items()}, out)
+        status = DiagnosticStatus(name="stabilize_monitor", level=DiagnosticStatus.OK, message="final figures")
+        status.values = [KeyValue(k, repr(float(v))) for k, v in figures.items()]
+        self.stats_pub.publish(status)
+        # The summary, last.
+        print("stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS" % (
+            figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
+            figures["closed_rotation_deg"]), flush=True)
+        if self.exit:
+            end_launch()
+            rospy.signal_shutdown("duration reached")
+
+
+def draw(path, figures, t, closed, open_, f, po, pc, s):
+    from structured_light_stabilizer.plot import Figure
+    fig = Figure(1500, 1120, "stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS "
+                 "(latency exposure to command %.0f ms median)" % (
+                     figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
+                     figures["closed_rotation_deg"], figures["latency_median_ms"]))
+    names = ("tx", "ty", "tz", "rx", "ry", "rz")
+    for a in range(6):
+        scale, unit = (1e3, "mm") if a < 3 else (180.0 / math.pi, "deg")
+        ax = fig.add((0 if a < 3 else 750, (a % 3) * 250, 750, 250),
+                     "%s: offset from the locked pose" % names[a], "time since the lock (s)", unit)
+        ax.plot(t, open_[:, a] * scale, "open loop (disturbance)")
+        ax.plot(t, closed[:, a] * scale, "closed loop")
+    spec = fig.add((0, 750, 750, 340), "translation PSD (tx+ty+tz)", "frequency (Hz)", "mm^2/Hz", xlog=True, ylog=True)
+    ok = f > 0
+    spec.plot(f[ok], po[ok] * 1e6, "disturbance")
+    spec.plot(f[ok], pc[ok] * 1e6, "closed-loop residual")
+    sens = fig.add((750, 750, 750, 340), "measured sensitivity |S| = residual / disturbance", "frequency (Hz)",
+                   "|S|", xlog=True, ylog=True)
+    sens.plot(f[ok], s[ok], "|S| measured")
+    sens.hline(1.0 / math.sqrt(2.0), "0.71")
+    bw = figures["bandwidth_hz"]
+    if math.isfinite(bw):
+        spec.vline(bw, "loop bandwidth %.2f Hz" % bw)
+        sens.vline(bw, "bandwidth %.2f Hz" % bw)
+    fig.save(path)
+
+
+if __name__ == "__main__":
+    rospy.init_node("stabilize_monitor")
+    Monitor()
+    rospy.spin()
