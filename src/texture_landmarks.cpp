@@ -14,6 +14,9 @@ namespace structured_light_stabilizer
 namespace
 {
 
+// Reach of the finite differences of a window's warp, in pixels of its level.
+constexpr double kWarpReachPx = 8.0;
+
 TextureTrackerParams trackerParams(const PoseDeltaParams& config)
 {
   TextureTrackerParams tc;
@@ -26,6 +29,9 @@ TextureTrackerParams trackerParams(const PoseDeltaParams& config)
   tc.roi_margin_px = config.texture_roi_margin_px;
   tc.photometric_refinement = config.texture_refinement_window_px > 0;
   tc.refinement_window_px = std::max(config.texture_refinement_window_px, 3);
+  tc.max_level = config.texture_max_level;
+  tc.min_snr = config.texture_min_snr;
+  tc.max_sigma_px = config.texture_max_sigma_px;
   return tc;
 }
 
@@ -100,10 +106,12 @@ void TextureLandmarks::lock(const PoseDeltaParams& config, const CameraModel& ca
     Eigen::Vector3d X;
     const cv::Point2f& f = tracker_.features()[k];
     const Eigen::Vector3d ray = camera.ray(cv::Point2d(f.x, f.y)).normalized();
-    if (surface.intersectRay(ray, &uv, &X))
+    Eigen::Vector3d S, Su, Sv;
+    if (surface.intersectRay(ray, &uv, &X) && surface.evaluate(uv.x(), uv.y(), &S, &Su, &Sv))
     {
       keep[k] = 1;
       points_.push_back(X);
+      normals_.push_back(Su.cross(Sv).normalized());
       depth_sigma_.push_back(config.texture_depth_sigma_m);
       continue;
     }
@@ -113,6 +121,7 @@ void TextureLandmarks::lock(const PoseDeltaParams& config, const CameraModel& ca
     {
       keep[k] = 1;
       points_.push_back(depth * ray);
+      normals_.push_back(plane.normal);
       depth_sigma_.push_back(outside_sigma);
     }
   }
@@ -130,6 +139,7 @@ void TextureLandmarks::dropFeatures()
 {
   tracker_.clear();
   points_.clear();
+  normals_.clear();
   depth_sigma_.clear();
 }
 
@@ -141,24 +151,60 @@ bool TextureLandmarks::setFrame(const CameraModel& camera, const cv::Mat& image,
   return tracker_.setFrame(image, channel);
 }
 
-std::vector<cv::Point2f> TextureLandmarks::predict(const Eigen::Isometry3d& T) const
+std::vector<cv::Point2f> TextureLandmarks::predict(const Eigen::Isometry3d& T, std::vector<cv::Matx22d>* warps) const
 {
   std::vector<cv::Point2f> px(points_.size());
+  if (warps)
+    warps->assign(points_.size(), cv::Matx22d::eye());
   for (size_t k = 0; k < points_.size(); ++k)
   {
     const cv::Point2d p = camera_.project(T * points_[k]);
     px[k] = cv::Point2f(static_cast<float>(p.x), static_cast<float>(p.y));
+    if (!warps)
+      continue;
+    // Finite differences over the window's reach on the rock's tangent
+    // plane, so the map is the window's average and lens distortion is in it.
+    const cv::Point2f& f = tracker_.features()[k];
+    const double reach = kWarpReachPx * static_cast<double>(1 << tracker_.levels()[k]);
+    const double plane = normals_[k].dot(points_[k]);
+    cv::Matx22d A;
+    bool ok = std::isfinite(p.x) && std::isfinite(p.y);
+    for (int axis = 0; axis < 2 && ok; ++axis)
+    {
+      const cv::Point2d from(f.x + (axis == 0 ? reach : 0.0), f.y + (axis == 1 ? reach : 0.0));
+      const Eigen::Vector3d ray = camera_.ray(from);
+      const double along = normals_[k].dot(ray);
+      const cv::Point2d q = camera_.project(T * Eigen::Vector3d(ray * (plane / along)));
+      A(0, axis) = (q.x - p.x) / reach;
+      A(1, axis) = (q.y - p.y) / reach;
+      ok = std::abs(along) > 1e-3 && std::isfinite(q.x) && std::isfinite(q.y);
+    }
+    if (ok)
+      (*warps)[k] = A;
   }
   return px;
 }
 
 std::vector<TextureConstraint> TextureLandmarks::constraints(const std::vector<cv::Point2f>& tracked,
-                                                             const std::vector<uint8_t>& ok) const
+                                                             const std::vector<uint8_t>& ok,
+                                                             const std::vector<cv::Matx22d>* covariance) const
 {
   std::vector<TextureConstraint> c;
   for (size_t k = 0; k < points_.size(); ++k)
-    if (ok[k])
-      c.push_back({points_[k], camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y)), depth_sigma_[k]});
+  {
+    if (!ok[k])
+      continue;
+    TextureConstraint tc;
+    tc.point_ref = points_[k];
+    tc.observed_normalized = camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y));
+    tc.depth_sigma_m = depth_sigma_[k];
+    if (covariance)
+    {
+      const cv::Matx22d& m = (*covariance)[k];
+      tc.covariance_px << m(0, 0), m(0, 1), m(1, 0), m(1, 1);
+    }
+    c.push_back(tc);
+  }
   return c;
 }
 
@@ -189,8 +235,10 @@ std::vector<TextureConstraint> TextureLandmarks::refineAll(const Eigen::Isometry
 {
   std::vector<cv::Point2f> tracked;
   std::vector<uint8_t> ok;
-  tracker_.refineAll(predict(T), dots_, &tracked, &ok);
-  return constraints(tracked, ok);
+  std::vector<cv::Matx22d> covariance, warps;
+  const std::vector<cv::Point2f> predicted = predict(T, &warps);
+  tracker_.refineAll(predicted, dots_, &tracked, &ok, &covariance, &warps);
+  return constraints(tracked, ok, &covariance);
 }
 
 }  // namespace structured_light_stabilizer

@@ -57,6 +57,15 @@ struct PoseDeltaParams
   // Lucas-Kanade): natural vignetting alone changes a point's brightness by
   // several per cent as it moves, which plain Lucas-Kanade reads as a shift.
   int texture_refinement_window_px = 23;
+  // Coarsest pyramid level of a refinement window: a weak, low-frequency
+  // texture (features of 10 cm and more) carries its information on a coarse
+  // level, where a window spans more rock. 0 = full resolution only.
+  int texture_max_level = 2;
+  // A window is a feature only when its texture's gradient energy exceeds
+  // the image noise's this many times (a flat, textureless board has none),
+  // and when its predicted shift 1-sigma is at most texture_max_sigma_px.
+  double texture_min_snr = 1.0;
+  double texture_max_sigma_px = 0.5;
   // Features from the whole image (not only the box of the dots): their
   // perspective flow separates in-plane translation from tilt, which the
   // narrow box cannot. Outside the dot map a feature's depth is extrapolated

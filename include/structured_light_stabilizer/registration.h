@@ -9,8 +9,9 @@
 //    to `reference_surface` and, when `current_surface` is given, of each
 //    `reference` point to it; Huber weights on the robust (MAD) scale;
 //  - texture: the reprojection error (pixels, scaled by `focal_px`) of
-//    reference texture points observed in the current image; Huber, then
-//    Tukey's biweight once the pose settles.
+//    reference texture points observed in the current image, whitened by
+//    each feature's measured covariance (when it has one); Huber, then
+//    Tukey's biweight once the pose settles, on the robust scale.
 // A weak prior towards `initial` keeps unobservable directions put, and a
 // direction whose 1-sigma exceeds freeze_factor times the validity bounds is
 // not updated at all (it stays at `initial`). Points that are NaN or behind
@@ -40,6 +41,9 @@ struct TextureConstraint
   Eigen::Vector3d point_ref;
   Eigen::Vector2d observed_normalized;
   double depth_sigma_m = 0.0;
+  // Measured covariance of the observation (pixels^2, scaled by focal_px);
+  // zero = unknown (the robust scale of all features alone weights it).
+  Eigen::Matrix2d covariance_px = Eigen::Matrix2d::Zero();
 };
 
 struct RegistrationOutput

@@ -65,14 +65,20 @@ private:
   // for a prediction, at a fraction of the cost of all.
   static constexpr size_t kCoarseFeatures = 48;
 
-  std::vector<cv::Point2f> predict(const Eigen::Isometry3d& T) const;
-  std::vector<TextureConstraint> constraints(const std::vector<cv::Point2f>& tracked,
-                                             const std::vector<uint8_t>& ok) const;
+  // Pixels of the features at T and, with `warps`, the local linear map of
+  // each feature's window (its patch of rock taken as the plane through its
+  // point with its normal).
+  std::vector<cv::Point2f> predict(const Eigen::Isometry3d& T, std::vector<cv::Matx22d>* warps = nullptr) const;
+  // The tracked features as constraints; with `covariance` (px^2, per
+  // feature) each carries its measured covariance.
+  std::vector<TextureConstraint> constraints(const std::vector<cv::Point2f>& tracked, const std::vector<uint8_t>& ok,
+                                             const std::vector<cv::Matx22d>* covariance = nullptr) const;
   std::vector<TextureConstraint> trackPyramidal(const Eigen::Isometry3d& T, const std::vector<uint8_t>& which);
 
   TextureTracker tracker_;
-  std::vector<Eigen::Vector3d> points_;  // the features lifted to 3D, reference camera frame
-  std::vector<double> depth_sigma_;      // 1-sigma of each feature's depth (0 = fixed)
+  std::vector<Eigen::Vector3d> points_;   // the features lifted to 3D, reference camera frame
+  std::vector<Eigen::Vector3d> normals_;  // of the rock at each feature (reference surface or plane)
+  std::vector<double> depth_sigma_;       // 1-sigma of each feature's depth (0 = fixed)
   bool has_image_ = false;
   // The frame being tracked.
   CameraModel camera_;
