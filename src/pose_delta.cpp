@@ -72,6 +72,12 @@ std::string PoseDeltaParams::validate() const
     why << "texture depth sigmas must not be negative (the extrapolated one positive); ";
   if (texture_max_features < 0 || texture_min_features < 0)
     why << "texture feature counts must not be negative; ";
+  if (texture_max_level < 0 || texture_max_level > 4)
+    why << "texture_max_level must be in [0, 4]; ";
+  if (!(texture_min_snr >= 0.0) || !(texture_max_sigma_px > 0.0))
+    why << "texture_min_snr must not be negative and texture_max_sigma_px must be positive; ";
+  if (!(filter_acceleration_noise > 0.0) || !(filter_angular_acceleration_noise > 0.0))
+    why << "filter noise densities must be positive; ";
   std::string s = why.str();
   if (s.size() >= 2)
     s.resize(s.size() - 2);
@@ -107,6 +113,10 @@ void PoseDeltaEstimator::setParams(const PoseDeltaParams& config)
     throw std::invalid_argument("PoseDelta config: " + why);
   const bool mode_changed = config.mode != config_.mode;
   config_ = config;
+  PoseFilterParams fp;
+  fp.acceleration_noise = config.filter_acceleration_noise;
+  fp.angular_acceleration_noise = config.filter_angular_acceleration_noise;
+  filter_.setParams(fp);
   if (mode_changed)
     requestLock();
 }
@@ -176,6 +186,8 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
   has_reference_ = true;
   lock_pending_ = false;
   last_estimate_ = Eigen::Isometry3d::Identity();
+  if (config_.mode == PoseDeltaMode::kReference)
+    filter_.reset();
 }
 
 PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
@@ -214,6 +226,7 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   const RegistrationOutput reg = registerFrame(frame, texture, initial);
   report(reg, texture, valid_points, &result);
   advance(frame, result, reg);
+  filter(frame, &result);
   return result;
 }
 
@@ -408,6 +421,38 @@ void PoseDeltaEstimator::advance(const PoseDeltaInput& frame, const PoseDeltaRes
   }
   else
     last_estimate_ = reg.transform;
+}
+
+}  // namespace structured_light_stabilizer
+
+namespace structured_light_stabilizer
+{
+
+void PoseDeltaEstimator::filter(const PoseDeltaInput& frame, PoseDeltaResult* result)
+{
+  result->raw_transform = result->transform;
+  result->raw_covariance = result->covariance;
+  if (!config_.filter || !has_reference_)
+    return;
+  if (result->locked_now)
+    filter_.reset();
+  if (result->valid)
+  {
+    filter_.update(frame.stamp_s, result->transform, result->covariance);
+    result->transform = filter_.pose();
+    result->covariance = filter_.poseCovariance();
+    result->filtered = true;
+    return;
+  }
+  // An invalid frame: the filter's prediction, still not valid.
+  Eigen::Isometry3d pose;
+  Matrix6d covariance;
+  if (filter_.predict(frame.stamp_s, &pose, &covariance))
+  {
+    result->transform = pose;
+    result->covariance = covariance;
+    result->filtered = true;
+  }
 }
 
 }  // namespace structured_light_stabilizer

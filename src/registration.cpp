@@ -74,23 +74,30 @@ public:
       uv_reverse_[j] = gridPoint(j);
   }
 
-  // Linearises at T and adds the Huber-weighted rows.
+  // Linearises at T and adds the Huber-weighted rows. Each direction has
+  // its own robust scale: the current points against the (refined)
+  // reference surface and the reference points against the current surface
+  // interpolated from this frame's dots alone are not equally good.
   void addTo(const Eigen::Isometry3d& T, const PoseDeltaParams& config, NormalEquations* system)
   {
     linearize(T);
-    std::vector<double> magnitudes;
-    magnitudes.reserve(rows_.size());
+    std::vector<double> magnitudes[2];
     for (const Row& row : rows_)
-      magnitudes.push_back(std::abs(row.r));
-    sigma_ = robustScale(std::move(magnitudes), config.min_geometry_sigma_m);
+      magnitudes[row.reverse ? 1 : 0].push_back(std::abs(row.r));
+    double scale[2];
+    for (int d = 0; d < 2; ++d)
+      scale[d] = robustScale(magnitudes[d], config.min_geometry_sigma_m);
+    std::vector<double> all = std::move(magnitudes[0]);
+    all.insert(all.end(), magnitudes[1].begin(), magnitudes[1].end());
+    sigma_ = robustScale(std::move(all), config.min_geometry_sigma_m);
     const Matrix6d before = system->H;
-    const double kg = config.huber_k * sigma_;
     sum_r2_ = 0.0;
     for (const Row& row : rows_)
     {
-      const double ar = std::abs(row.r);
+      const double sd = scale[row.reverse ? 1 : 0];
+      const double ar = std::abs(row.r), kg = config.huber_k * sd;
       const double huber = ar <= kg ? 1.0 : kg / ar;
-      const double w = row.w * huber / (sigma_ * sigma_);
+      const double w = row.w * huber / (sd * sd);
       system->H.noalias() += w * row.J.transpose() * row.J;
       system->g.noalias() += w * row.J.transpose() * row.r;
       sum_r2_ += row.r * row.r;
@@ -109,6 +116,7 @@ private:
     Eigen::Matrix<double, 1, 6> J;
     double r;
     double w;
+    bool reverse = false;  // a reference point against the current surface
   };
 
   Eigen::Vector2d gridPoint(size_t beam) const
@@ -163,6 +171,7 @@ private:
       row.J << n.transpose(), y.cross(n).transpose();
       row.r = n.dot(y - foot);
       row.w = direction_weight_;
+      row.reverse = true;
       rows_.push_back(row);
     }
   }

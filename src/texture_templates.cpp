@@ -162,7 +162,8 @@ bool TextureTracker::buildTemplate(const cv::Point2f& position, int level, const
   t->inverse_normal = normal.inv(cv::DECOMP_CHOLESKY, &invertible);
   t->noise_sigma0 = noiseAt(cv::Point2f(position.x - roi_.x, position.y - roi_.y));
   t->gradient_noise_var = t->noise_sigma0 * t->noise_sigma0 * levelNoise(level).gradient_factor;
-  t->ok = invertible && shiftCovariance(normal, t->samples, t->gradient_noise_var, level, &t->shift_covariance);
+  t->ok = invertible && signalInverse(normal, t->samples, t->gradient_noise_var, &t->inverse_signal);
+  t->shift_covariance = shiftCovariance(t->inverse_signal, level);
   return t->ok;
 }
 
@@ -192,8 +193,8 @@ TextureTracker::Information TextureTracker::information(const Template& t, int l
   return info;
 }
 
-bool TextureTracker::shiftCovariance(const cv::Matx66d& normal, double samples, double gradient_noise_var, int level,
-                                     cv::Matx22d* covariance)
+bool TextureTracker::signalInverse(const cv::Matx66d& normal, double samples, double gradient_noise_var,
+                                   cv::Matx66d* inverse)
 {
   // The template's gradients carry its noise: take it out of the shift's
   // information (what is left is the texture's).
@@ -201,12 +202,14 @@ bool TextureTracker::shiftCovariance(const cv::Matx66d& normal, double samples, 
   signal(0, 0) -= samples * gradient_noise_var;
   signal(1, 1) -= samples * gradient_noise_var;
   bool invertible = false;
-  const cv::Matx66d inverse = signal.inv(cv::DECOMP_CHOLESKY, &invertible);
-  if (!invertible)
-    return false;
+  *inverse = signal.inv(cv::DECOMP_CHOLESKY, &invertible);
+  return invertible && (*inverse)(0, 0) > 0.0 && (*inverse)(1, 1) > 0.0;
+}
+
+cv::Matx22d TextureTracker::shiftCovariance(const cv::Matx66d& inverse_signal, int level)
+{
   const double scale = static_cast<double>(1 << level) * static_cast<double>(1 << level);
-  *covariance = cv::Matx22d(inverse(0, 0), inverse(0, 1), inverse(1, 0), inverse(1, 1)) * scale;
-  return (*covariance)(0, 0) > 0.0 && (*covariance)(1, 1) > 0.0;
+  return cv::Matx22d(inverse_signal(0, 0), inverse_signal(0, 1), inverse_signal(1, 0), inverse_signal(1, 1)) * scale;
 }
 
 bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& warp,
@@ -248,8 +251,8 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
 }
 
 bool TextureTracker::refine(const Template& t, const std::vector<float>& values, const cv::Mat& image,
-                            const std::vector<float>& mask, const cv::Matx66d& inverse_normal, cv::Point2d* q,
-                            double* residual_ss) const
+                            const std::vector<float>& mask, const cv::Matx66d& inverse_normal,
+                            const cv::Matx66d& inverse_signal, cv::Point2d* q, double* residual_ss) const
 {
   const int h = refinementHalf();
   const int width = 2 * h + 1, stride = paddedWidth(width);
@@ -307,14 +310,20 @@ bool TextureTracker::refine(const Template& t, const std::vector<float>& values,
       b[5] -= a5[l];
       rr += a6[l];
     }
-    const cv::Vec<double, kParams> step = -(inverse_normal * b);
-    // The residual left once the linear model is fitted: rr - b^T N^-1 b.
-    *residual_ss = std::max(0.0, rr + b.dot(step));
-    // The step is taken along the template's gradient; the image's is the
-    // gain a = 1 + step[2] times that.
-    const double gain = 1.0 + step[2];
-    if (!(gain >= kMinGain && gain <= kMaxGain))
+    // Least squares with the template as it is (its noise included): the
+    // residual it leaves, rr - b^T N^-1 b, and the gain, which regression
+    // dilution pulls towards 0 when the window is not the template's texture.
+    const cv::Vec<double, kParams> fit = -(inverse_normal * b);
+    *residual_ss = std::max(0.0, rr + b.dot(fit));
+    if (!(1.0 + fit[2] >= kMinGain && 1.0 + fit[2] <= kMaxGain))
       return false;
+    // The step with the template noise's share taken out of the normal
+    // matrix: a full Newton step (the noisy one falls short by the noise's
+    // share of the gradient energy, and stopping early would leave every
+    // window a little towards its prediction, a common error). The step is
+    // taken along the template's gradient; the image's is the gain times that.
+    const cv::Vec<double, kParams> step = -(inverse_signal * b);
+    const double gain = std::max(1.0 + step[2], kMinGain);
     const double sx = step[0] / gain, sy = step[1] / gain;
     qx += sx;
     qy += sy;
@@ -353,7 +362,7 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
         warps && warps->size() == n && warpTemplate(t, features_[i], level, (*warps)[i], &warped_values, &warped_mask);
     local_mask = warped ? warped_mask : t.mask;
     const bool masked = maskDots(dots, predicted[i], level, &local_mask);
-    cv::Matx66d inverse_normal = t.inverse_normal;
+    cv::Matx66d inverse_normal = t.inverse_normal, inverse_signal = t.inverse_signal;
     cv::Matx22d unit_covariance = t.shift_covariance;
     double samples = t.samples;
     if (masked)
@@ -361,13 +370,14 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
       bool invertible = false;
       const cv::Matx66d normal = normalOf(t, local_mask, &samples);
       inverse_normal = normal.inv(cv::DECOMP_CHOLESKY, &invertible);
-      if (!invertible || !shiftCovariance(normal, samples, t.gradient_noise_var, level, &unit_covariance))
+      if (!invertible || !signalInverse(normal, samples, t.gradient_noise_var, &inverse_signal))
         continue;
+      unit_covariance = shiftCovariance(inverse_signal, level);
     }
     cv::Point2d q(toLevel(p.x, level), toLevel(p.y, level));
     double residual_ss = 0.0;
     if (!refine(t, warped ? warped_values : t.value, frame_levels_[static_cast<size_t>(level)],
-                masked || warped ? local_mask : t.mask, inverse_normal, &q, &residual_ss))
+                masked || warped ? local_mask : t.mask, inverse_normal, inverse_signal, &q, &residual_ss))
       continue;
     const double residual_var = residual_ss / std::max(1.0, samples - kParams);
     const cv::Matx22d cov = unit_covariance * residual_var;

@@ -26,6 +26,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -37,6 +38,7 @@
 #include "structured_light_stabilizer/beam_surface.h"
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/pose_delta_params.h"
+#include "structured_light_stabilizer/pose_filter.h"
 #include "structured_light_stabilizer/registration.h"
 #include "structured_light_stabilizer/se3.h"
 
@@ -54,12 +56,20 @@ struct PoseDeltaInput
   // red channel for green dots: 2 in bgr8, 0 in rgb8).
   cv::Mat image;
   int texture_channel = 2;
+  // Time of the frame (seconds, one clock for the stream); NaN = unknown
+  // (the filter then restarts at every frame).
+  double stamp_s = std::numeric_limits<double>::quiet_NaN();
 };
 
 struct PoseDeltaResult
 {
   Eigen::Isometry3d transform = Eigen::Isometry3d::Identity();  // p_cur = T * p_ref
   Matrix6d covariance = Matrix6d::Identity();                   // (tx, ty, tz, rx, ry, rz)
+  // The estimate of this frame alone; equal to transform and covariance
+  // unless PoseDeltaParams::filter is on.
+  Eigen::Isometry3d raw_transform = Eigen::Isometry3d::Identity();
+  Matrix6d raw_covariance = Matrix6d::Identity();
+  bool filtered = false;  // transform and covariance come from the filter
   double rms_residual_m = 0.0;
   int points_used = 0;
   int features_used = 0;          // texture constraints in the solution
@@ -116,6 +126,8 @@ private:
                        const std::string& unobservable, const std::string& texture_note) const;
   // A valid result becomes the next frame's starting point (or reference, frame_to_frame).
   void advance(const PoseDeltaInput& frame, const PoseDeltaResult& result, const RegistrationOutput& reg);
+  // With the filter on: the result's transform and covariance become the filter's.
+  void filter(const PoseDeltaInput& frame, PoseDeltaResult* result);
 
   // Why the texture cannot be tracked in this frame, or "".
   std::string textureUnavailable(const PoseDeltaInput& frame) const;
@@ -136,6 +148,7 @@ private:
   Eigen::Isometry3d last_estimate_ = Eigen::Isometry3d::Identity();  // relative to reference_
   Eigen::Isometry3d chained_ = Eigen::Isometry3d::Identity();        // frame_to_frame: reference_ to the lock
   Matrix6d chained_covariance_ = Matrix6d::Zero();
+  PoseFilter filter_;
 };
 
 }  // namespace structured_light_stabilizer

@@ -82,6 +82,13 @@ struct PoseDeltaParams
   // the simulator the in-plane errors are 2-2.5 times the independent sigma.
   double texture_error_inflation = 2.5;
 
+  // Optional constant-velocity filter over the estimates (pose_filter.h):
+  // the result's transform and covariance are then the filter's, the raw
+  // estimate stays in PoseDeltaResult::raw_*. Needs PoseDeltaInput::stamp_s.
+  bool filter = false;
+  double filter_acceleration_noise = 0.1;           // m/s^2/sqrt(Hz), per axis (pose_filter.h)
+  double filter_angular_acceleration_noise = 0.15;  // rad/s^2/sqrt(Hz), per axis
+
   // Empty when usable, otherwise why not.
   std::string validate() const;
 };

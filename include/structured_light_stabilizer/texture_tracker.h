@@ -133,6 +133,7 @@ private:
   {
     std::vector<float> value, gx, gy, mask;
     cv::Matx66d inverse_normal;
+    cv::Matx66d inverse_signal;       // with the template noise's share taken out (signalInverse)
     double samples = 0.0;             // window samples with weight
     double noise_sigma0 = 0.0;        // full-resolution noise where the feature is (DN)
     double gradient_noise_var = 0.0;  // of one gradient sample on the level (DN^2)
@@ -188,12 +189,15 @@ private:
   // left by the fitted model.
   // (`values` in place of the template's when warped).
   bool refine(const Template& t, const std::vector<float>& values, const cv::Mat& image, const std::vector<float>& mask,
-              const cv::Matx66d& inverse_normal, cv::Point2d* q, double* residual_ss) const;
-  // Covariance of the shift (full-resolution px^2) per unit residual
-  // variance, from the normal matrix over `samples` window samples less the
-  // template noise's share; false when what is left is not positive.
-  static bool shiftCovariance(const cv::Matx66d& normal, double samples, double gradient_noise_var, int level,
-                              cv::Matx22d* covariance);
+              const cv::Matx66d& inverse_normal, const cv::Matx66d& inverse_signal, cv::Point2d* q,
+              double* residual_ss) const;
+  // Inverse of the normal matrix over `samples` window samples less the
+  // template noise's share of the gradient energy (the texture's own
+  // information); false when what is left is not positive.
+  static bool signalInverse(const cv::Matx66d& normal, double samples, double gradient_noise_var,
+                            cv::Matx66d* inverse);
+  // Covariance of the shift (full-resolution px^2) per unit residual variance.
+  static cv::Matx22d shiftCovariance(const cv::Matx66d& inverse_signal, int level);
   // p in ROI coordinates: inside the tracked area with a window of `level`
   // and clear of the dots; *full gets the full-image position.
   bool accept(const cv::Point2f& p, int level, const std::vector<cv::Point2f>& dots, cv::Point2f* full) const;
