@@ -287,31 +287,38 @@ PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const 
   m.note = textureUnavailable(frame);
   if (!m.note.empty())
     return m;
-  // Geometry first: on a rough rock it places the features to within a
-  // pixel or two, on any surface it fixes distance and tilts.
-  // Only a prediction: one direction, a few iterations, no second phase;
-  // a firm prior keeps the axes a smooth surface leaves free near the
-  // last estimate (with the weak one they wander by degrees on noise).
-  refit(frame, {}, 1.0, predictionParams(config_, true), initial);
   if (!texture_->setFrame(camera_, frame.image, frame.texture_channel, frame.points))
   {
     m.note = "image unusable for tracking";
     return m;
   }
+  // Geometry alone places the features on a rough rock to within a pixel or
+  // two and fixes distance and tilts on any surface: the prediction when the
+  // texture cannot give one. Only a prediction: one direction, a few
+  // iterations, no second phase; a firm prior keeps the axes a smooth
+  // surface leaves free near the last estimate (with the weak one they
+  // wander by degrees on noise).
+  const PoseDeltaParams geometric = predictionParams(config_, true);
   std::vector<TextureConstraint> tracked;
   if (config_.texture_refinement_window_px > 0)
   {
-    // A few features tracked over the pyramid (wide capture range) fix
-    // the in-plane axes well enough to predict every feature to a
-    // fraction of a pixel; the gain-and-offset refinement from there is
-    // the measurement, and costs a fraction of pyramidal tracking.
+    // A few features tracked over the pyramid from the last estimate (a
+    // wide capture range) fix the in-plane axes well enough to predict
+    // every feature to a fraction of a pixel; the gain-and-offset
+    // refinement from there is the measurement, and costs a fraction of
+    // pyramidal tracking.
     const std::vector<TextureConstraint> coarse = texture_->trackCoarse(*initial);
     if (static_cast<int>(coarse.size()) >= kMinCoarseFeatures)
       m.predicted = refit(frame, coarse, camera_.fx, predictionParams(config_, false), initial);
+    else
+      refit(frame, {}, 1.0, geometric, initial);
     tracked = texture_->refineAll(*initial);
   }
   else
+  {
+    refit(frame, {}, 1.0, geometric, initial);
     tracked = texture_->trackAll(*initial);
+  }
   if (static_cast<int>(tracked.size()) < config_.texture_min_features)
     m.note = "only " + std::to_string(tracked.size()) + " texture features tracked";
   else

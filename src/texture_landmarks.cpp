@@ -29,6 +29,7 @@ TextureTrackerParams trackerParams(const PoseDeltaParams& config)
   tc.roi_margin_px = config.texture_roi_margin_px;
   tc.photometric_refinement = config.texture_refinement_window_px > 0;
   tc.refinement_window_px = std::max(config.texture_refinement_window_px, 3);
+  tc.min_level = config.texture_min_level;
   tc.max_level = config.texture_max_level;
   tc.min_snr = config.texture_min_snr;
   tc.max_sigma_px = config.texture_max_sigma_px;

@@ -3,6 +3,9 @@
 // refinement with a photometric model (texture_tracker.h).
 #include <cmath>
 
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
 #include "structured_light_stabilizer/texture_tracker.h"
 
 namespace structured_light_stabilizer
@@ -29,6 +32,19 @@ constexpr double kMaxGain = 2.0;
 constexpr int kParams = 6;
 // A warp moving the window's corner by less than this (level pixels) is not applied.
 constexpr double kNegligibleWarpPx = 0.05;
+
+// Inverse of a symmetric positive definite 6x6 matrix (Cholesky); false
+// when it is not positive definite. (Eigen's fixed-size LLT: inline, unlike
+// cv::Matx::inv.)
+bool invertSpd(const cv::Matx66d& A, cv::Matx66d* inverse)
+{
+  using M6 = Eigen::Matrix<double, 6, 6, Eigen::RowMajor>;
+  const Eigen::LLT<M6> llt(Eigen::Map<const M6>(A.val));
+  if (llt.info() != Eigen::Success)
+    return false;
+  Eigen::Map<M6>(inverse->val) = llt.solve(M6::Identity());
+  return true;
+}
 
 // Where a full-image point lies on a pyramid level: cv::pyrDown centres
 // pixel x of a level on pixel 2x of the level below.
@@ -158,8 +174,7 @@ bool TextureTracker::buildTemplate(const cv::Point2f& position, int level, const
   // The reference's own dots are not rock texture either.
   maskDots(dots, position, level, &t->mask);
   const cv::Matx66d normal = normalOf(*t, t->mask, &t->samples);
-  bool invertible = false;
-  t->inverse_normal = normal.inv(cv::DECOMP_CHOLESKY, &invertible);
+  const bool invertible = invertSpd(normal, &t->inverse_normal);
   t->noise_sigma0 = noiseAt(cv::Point2f(position.x - roi_.x, position.y - roi_.y));
   t->gradient_noise_var = t->noise_sigma0 * t->noise_sigma0 * levelNoise(level).gradient_factor;
   t->ok = invertible && signalInverse(normal, t->samples, t->gradient_noise_var, &t->inverse_signal);
@@ -201,9 +216,7 @@ bool TextureTracker::signalInverse(const cv::Matx66d& normal, double samples, do
   cv::Matx66d signal = normal;
   signal(0, 0) -= samples * gradient_noise_var;
   signal(1, 1) -= samples * gradient_noise_var;
-  bool invertible = false;
-  *inverse = signal.inv(cv::DECOMP_CHOLESKY, &invertible);
-  return invertible && (*inverse)(0, 0) > 0.0 && (*inverse)(1, 1) > 0.0;
+  return invertSpd(signal, inverse) && (*inverse)(0, 0) > 0.0 && (*inverse)(1, 1) > 0.0;
 }
 
 cv::Matx22d TextureTracker::shiftCovariance(const cv::Matx66d& inverse_signal, int level)
@@ -232,6 +245,7 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
   // The dots' mask moves by a fraction of a pixel: kept as it is.
   *mask = t.mask;
   const float i00 = static_cast<float>(inverse(0, 0)), i10 = static_cast<float>(inverse(1, 0));
+  const size_t row_step = image.step1();
   for (int dy = -h; dy <= h; ++dy)
   {
     // The reference sample that lands at (dx, dy) of the current window.
@@ -243,7 +257,7 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
       const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);  // non-negative: truncation is floor
       const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
       const float* r0 = image.ptr<float>(y0) + x0;
-      const float* r1 = r0 + image.step1();
+      const float* r1 = r0 + row_step;
       out[k] = (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
     }
   }
@@ -367,10 +381,8 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
     double samples = t.samples;
     if (masked)
     {
-      bool invertible = false;
       const cv::Matx66d normal = normalOf(t, local_mask, &samples);
-      inverse_normal = normal.inv(cv::DECOMP_CHOLESKY, &invertible);
-      if (!invertible || !signalInverse(normal, samples, t.gradient_noise_var, &inverse_signal))
+      if (!invertSpd(normal, &inverse_normal) || !signalInverse(normal, samples, t.gradient_noise_var, &inverse_signal))
         continue;
       unit_covariance = shiftCovariance(inverse_signal, level);
     }

@@ -127,17 +127,67 @@ bool TextureTracker::floatChannel(const cv::Mat& image, int channel, const cv::R
   return true;
 }
 
-// The refinement's float levels 0 .. `levels` - 1 of the ROI and, at half
-// resolution (level 1 in 8 bits), the base of the Lucas-Kanade pyramid:
-// with the refinement to follow, pyramidal tracking only has to land within
-// a pixel, at a quarter of the cost.
-bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int levels, std::vector<cv::Mat>* float_levels,
-                                 cv::Mat* half)
+// One cv::pyrDown step from an 8-bit plane straight to CV_32F: the same
+// 5-tap binomial kernel and reflected border, without rounding the result
+// to whole 8-bit levels (at level 1 that rounding would add 0.29 DN of
+// noise to the 0.3 DN the sensor leaves) and without a full-resolution
+// float copy.
+void pyrDownToFloat(const cv::Mat& src, cv::Mat* dst)
+{
+  const int W = src.cols, H = src.rows, w = (W + 1) / 2, h = (H + 1) / 2;
+  dst->create(h, w, CV_32F);
+  std::vector<float> column(static_cast<size_t>(W) + 4);
+  float* c = column.data() + 2;
+  auto reflect = [](int i, int n) { return i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i); };
+  for (int y = 0; y < h; ++y)
+  {
+    const uint8_t* r0 = src.ptr<uint8_t>(reflect(2 * y - 2, H));
+    const uint8_t* r1 = src.ptr<uint8_t>(reflect(2 * y - 1, H));
+    const uint8_t* r2 = src.ptr<uint8_t>(2 * y);
+    const uint8_t* r3 = src.ptr<uint8_t>(reflect(2 * y + 1, H));
+    const uint8_t* r4 = src.ptr<uint8_t>(reflect(2 * y + 2, H));
+    for (int x = 0; x < W; ++x)
+      c[x] = static_cast<float>(r0[x] + r4[x]) + 4.0f * static_cast<float>(r1[x] + r3[x]) + 6.0f * r2[x];
+    c[-1] = c[std::min(1, W - 1)];
+    c[-2] = c[std::min(2, W - 1)];
+    c[W] = c[std::max(W - 2, 0)];
+    c[W + 1] = c[std::max(W - 3, 0)];
+    float* o = dst->ptr<float>(y);
+    for (int x = 0; x < w; ++x)
+    {
+      const float* p = c + 2 * x;
+      o[x] = (p[-2] + p[2] + 4.0f * (p[-1] + p[1]) + 6.0f * p[0]) * (1.0f / 256.0f);
+    }
+  }
+}
+
+// The refinement's float levels first_level .. `levels` - 1 of the ROI
+// (those below first_level left empty) and, at half resolution (level 1 in
+// 8 bits), the base of the Lucas-Kanade pyramid: with the refinement to
+// follow, pyramidal tracking only has to land within a pixel, at a quarter
+// of the cost.
+bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_level, int levels,
+                                 std::vector<cv::Mat>* float_levels, cv::Mat* half)
 {
   float_levels->resize(static_cast<size_t>(std::max(levels, 2)));
-  if (!floatChannel(image, channel, roi_, &scratch_, &(*float_levels)[0]))
-    return false;
-  for (size_t l = 1; l < float_levels->size(); ++l)
+  if (first_level <= 0 || config_.smooth_sigma_px > 0.0)
+  {
+    if (!floatChannel(image, channel, roi_, &scratch_, &(*float_levels)[0]))
+      return false;
+    cv::pyrDown((*float_levels)[0], (*float_levels)[1]);
+  }
+  else
+  {
+    if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
+      cv::extractChannel(image(roi_), scratch_, channel);
+    else if (image.type() == CV_8UC1)
+      scratch_ = image(roi_);
+    else
+      return false;
+    (*float_levels)[0].release();
+    pyrDownToFloat(scratch_, &(*float_levels)[1]);
+  }
+  for (size_t l = 2; l < float_levels->size(); ++l)
     cv::pyrDown((*float_levels)[l - 1], (*float_levels)[l]);
   (*float_levels)[1].convertTo(*half, CV_8U);
   return true;
@@ -182,7 +232,7 @@ std::vector<TextureTracker::Candidate> TextureTracker::candidates(const std::vec
   std::vector<Candidate> pool;
   const int top = config_.photometric_refinement ? config_.max_level : 0;
   Template t;
-  for (int level = 0; level <= top; ++level)
+  for (int level = std::min(config_.min_level, top); level <= top; ++level)
     for (const cv::Point2f& p : findCorners(level, feature_region, dots))
     {
       if (nearDot(p, dots) || !buildTemplate(p, level, dots, &t))
@@ -253,7 +303,8 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
   {
     // Levels up to max_level + 1: the last one only to find corners for the one below.
     cv::Mat half;
-    if (!buildLevels(image, channel, config_.max_level + 2, &reference_levels_, &half))
+    // Level 0 too at the lock: corners for level-0 windows are found on level 1 of it.
+    if (!buildLevels(image, channel, 0, config_.max_level + 2, &reference_levels_, &half))
     {
       clear();
       return 0;
@@ -261,7 +312,15 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
     cv::buildOpticalFlowPyramid(half, reference_pyramid_, win, std::max(config_.pyramid_levels - 1, 0), true);
   }
   else
+  {
+    cv::Mat half;
+    if (!buildLevels(image, channel, 0, 2, &reference_levels_, &half))
+    {
+      clear();
+      return 0;
+    }
     cv::buildOpticalFlowPyramid(roi_image, reference_pyramid_, win, config_.pyramid_levels, true);
+  }
   if (config_.photometric_refinement)
     choose(candidates(dots, feature_region));
   else
@@ -272,10 +331,12 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
         levels_.push_back(0);
       }
   templates_.assign(features_.size(), Template());
+  first_level_ = config_.max_level;
   for (size_t i = 0; i < features_.size() && config_.photometric_refinement; ++i)
   {
     buildTemplate(features_[i], levels_[i], dots, &templates_[i]);
     used_levels_ = std::max(used_levels_, levels_[i] + 1);
+    first_level_ = std::min(first_level_, levels_[i]);
   }
   // Warped templates are sampled from the levels in use.
   reference_levels_.resize(static_cast<size_t>(std::max(used_levels_, 1)));
@@ -314,7 +375,7 @@ bool TextureTracker::setFrame(const cv::Mat& image, int channel)
   // The refinement's sums vectorise on floats; frame_ is the Lucas-Kanade
   // base (half resolution with the refinement).
   if (config_.photometric_refinement)
-    frame_ok_ = buildLevels(image, channel, used_levels_, &frame_levels_, &frame_);
+    frame_ok_ = buildLevels(image, channel, first_level_, used_levels_, &frame_levels_, &frame_);
   else
   {
     frame_ = prepare(image, channel, roi_);

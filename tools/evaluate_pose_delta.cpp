@@ -78,7 +78,8 @@ bool setParam(const std::string& setting, PoseDeltaParams* p)
       {"texture_pyramid_levels", &p->texture_pyramid_levels},
       {"texture_refinement_window_px", &p->texture_refinement_window_px},
       {"max_iterations", &p->max_iterations},
-      {"texture_max_level", &p->texture_max_level}};
+      {"texture_max_level", &p->texture_max_level},
+      {"texture_min_level", &p->texture_min_level}};
   const std::vector<std::pair<const char*, bool*>> bools = {
       {"use_texture", &p->use_texture}, {"symmetric", &p->symmetric}, {"texture_whole_image", &p->texture_whole_image}};
   for (const auto& d : doubles)

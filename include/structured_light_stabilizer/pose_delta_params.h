@@ -57,9 +57,11 @@ struct PoseDeltaParams
   // Lucas-Kanade): natural vignetting alone changes a point's brightness by
   // several per cent as it moves, which plain Lucas-Kanade reads as a shift.
   int texture_refinement_window_px = 23;
-  // Coarsest pyramid level of a refinement window: a weak, low-frequency
-  // texture (features of 10 cm and more) carries its information on a coarse
-  // level, where a window spans more rock. 0 = full resolution only.
+  // Pyramid levels of the refinement windows (texture_tracker.h): a weak,
+  // low-frequency texture (features of 10 cm and more) carries its
+  // information on a coarse level, where a window spans more rock; the
+  // finest is half resolution (0 = full resolution too).
+  int texture_min_level = 1;
   int texture_max_level = 2;
   // A window is a feature only when its texture's gradient energy exceeds
   // the image noise's this many times (a flat, textureless board has none),

@@ -59,7 +59,12 @@ struct TextureTrackerParams
   int refinement_window_px = 23;  // odd, in pixels of the feature's level
   int refinement_iterations = 6;
   double max_refinement_px = 1.5;  // in pixels of the feature's level: a refinement moving further is a failure
-  // Coarsest pyramid level of a refinement window (0 = full resolution only).
+  // Pyramid levels of the refinement windows. Level 1 (half resolution) is
+  // the finest by default: on the simulator's rock and boards the level-0
+  // windows were never better than level-1 ones (texture finer than 4 px is
+  // mostly defocus-blurred), and without them no full-resolution float copy
+  // of the frame is made.
+  int min_level = 1;
   int max_level = 2;
   // A window is a feature when its texture's gradient energy is at least
   // this times the noise's (in its weakest direction).
@@ -163,7 +168,8 @@ private:
   // The `roi` part of `image`'s channel as CV_32F in *out (lightly blurred
   // when asked); false for an unusable image.
   bool floatChannel(const cv::Mat& image, int channel, const cv::Rect& roi, cv::Mat* scratch, cv::Mat* out) const;
-  bool buildLevels(const cv::Mat& image, int channel, int levels, std::vector<cv::Mat>* float_levels, cv::Mat* half);
+  bool buildLevels(const cv::Mat& image, int channel, int first_level, int levels, std::vector<cv::Mat>* float_levels,
+                   cv::Mat* half);
   // Noise map of the reference ROI: sigma0 (DN) per block (Immerkaer's operator).
   void estimateNoise(const cv::Mat& roi_image);
   double noiseAt(const cv::Point2f& roi_point) const;
@@ -194,8 +200,7 @@ private:
   // Inverse of the normal matrix over `samples` window samples less the
   // template noise's share of the gradient energy (the texture's own
   // information); false when what is left is not positive.
-  static bool signalInverse(const cv::Matx66d& normal, double samples, double gradient_noise_var,
-                            cv::Matx66d* inverse);
+  static bool signalInverse(const cv::Matx66d& normal, double samples, double gradient_noise_var, cv::Matx66d* inverse);
   // Covariance of the shift (full-resolution px^2) per unit residual variance.
   static cv::Matx22d shiftCovariance(const cv::Matx66d& inverse_signal, int level);
   // p in ROI coordinates: inside the tracked area with a window of `level`
@@ -222,6 +227,7 @@ private:
   std::vector<int> levels_;            // refinement level of each feature
   std::vector<Template> templates_;    // one per feature with photometric_refinement
   int used_levels_ = 0;                // 1 + the coarsest level of any feature
+  int first_level_ = 0;                // the finest level of any feature
   cv::Mat frame_;                      // the current frame's ROI, tracked channel (half resolution with the refinement)
   std::vector<cv::Mat> frame_levels_;  // CV_32F refinement pyramid of the current ROI
   std::vector<cv::Mat> frame_pyramid_;  // LK pyramid, built on the first pyramidal track of a frame
