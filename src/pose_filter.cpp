@@ -19,6 +19,14 @@ Vector6d leftDifference(const Eigen::Isometry3d& to, const Eigen::Isometry3d& fr
 }
 }  // namespace
 
+void PoseFilter::relock()
+{
+  pose_ = Eigen::Isometry3d::Identity();
+  P_.topLeftCorner<6, 6>().setZero();
+  P_.topRightCorner<6, 6>().setZero();
+  P_.bottomLeftCorner<6, 6>().setZero();
+}
+
 bool PoseFilter::fits(double stamp_s) const
 {
   return started_ && std::isfinite(stamp_s) && stamp_s > stamp_s_ && stamp_s - stamp_s_ <= params_.max_gap_s;

@@ -197,18 +197,19 @@ class TextureResiduals
 {
 public:
   // `floor_px`: least 1-sigma of a feature with a measured covariance.
-  TextureResiduals(const std::vector<TextureConstraint>& constraints, double focal_px, double floor_px)
-    : constraints_(constraints),
-      focal_px_(focal_px),
-      ray_(constraints.size()),
-      depth0_(constraints.size()),
-      whiten_(constraints.size(), Eigen::Matrix2d::Identity())
+  TextureResiduals(const TextureObservations& texture, double floor_px)
+    : constraints_(texture.constraints),
+      focal_px_(texture.focal_px),
+      offset_(texture.offset),
+      ray_(texture.constraints.size()),
+      depth0_(texture.constraints.size()),
+      whiten_(texture.constraints.size(), Eigen::Matrix2d::Identity())
   {
-    for (size_t k = 0; k < constraints.size(); ++k)
+    for (size_t k = 0; k < constraints_.size(); ++k)
     {
-      depth0_[k] = constraints[k].point_ref.norm();
-      ray_[k] = depth0_[k] > 0.0 ? Eigen::Vector3d(constraints[k].point_ref / depth0_[k]) : Eigen::Vector3d::Zero();
-      const Eigen::Matrix2d& C = constraints[k].covariance_px;
+      depth0_[k] = constraints_[k].point_ref.norm();
+      ray_[k] = depth0_[k] > 0.0 ? Eigen::Vector3d(constraints_[k].point_ref / depth0_[k]) : Eigen::Vector3d::Zero();
+      const Eigen::Matrix2d& C = constraints_[k].covariance_px;
       if (C.isZero() || !C.allFinite())
         continue;
       // W with W C W^T = I: the residual in units of its own 1-sigma.
@@ -283,13 +284,15 @@ private:
     double g;
   };
 
+  // The image was exposed at offset_ * T: the point y0 = T X seen as y = offset_ y0.
   void linearize(const Eigen::Isometry3d& T)
   {
     rows_.clear();
-    const Eigen::Matrix3d R = T.linear();
+    const Eigen::Matrix3d R = T.linear(), Ro = offset_.linear();
     for (size_t k = 0; k < constraints_.size(); ++k)
     {
-      const Eigen::Vector3d y = T * Eigen::Vector3d(depth_[k] * ray_[k]);
+      const Eigen::Vector3d y0 = T * Eigen::Vector3d(depth_[k] * ray_[k]);
+      const Eigen::Vector3d y = offset_ * y0;
       if (!(y.z() > 1e-6))
         continue;
       const double iz = 1.0 / y.z();
@@ -297,11 +300,11 @@ private:
       dpi << iz, 0.0, -y.x() * iz * iz, 0.0, iz, -y.y() * iz * iz;
       dpi *= focal_px_;
       Eigen::Matrix<double, 3, 6> dy;
-      dy << Eigen::Matrix3d::Identity(), -skew(y);
+      dy << Eigen::Matrix3d::Identity(), -skew(y0);
       Row row;
       const Eigen::Matrix2d& W = whiten_[k];
-      row.J = W * dpi * dy;
-      row.Jd = W * dpi * (R * ray_[k]);
+      row.J = W * dpi * Ro * dy;
+      row.Jd = W * dpi * (Ro * R * ray_[k]);
       row.r_px = focal_px_ * (Eigen::Vector2d(y.x() * iz, y.y() * iz) - constraints_[k].observed_normalized);
       row.r = W * row.r_px;
       row.feature = k;
@@ -349,6 +352,7 @@ private:
 
   const std::vector<TextureConstraint>& constraints_;
   const double focal_px_;
+  const Eigen::Isometry3d offset_;
   std::vector<Eigen::Vector3d> ray_;  // unit reference rays
   std::vector<double> depth0_;        // the priors (distances along the rays)
   std::vector<double> depth_;         // the current values
@@ -441,10 +445,10 @@ class SurfaceRegistration
 public:
   SurfaceRegistration(const BeamSurface& reference_surface, const std::vector<Eigen::Vector3d>& reference,
                       const BeamSurface* current_surface, const std::vector<Eigen::Vector3d>& current,
-                      const std::vector<TextureConstraint>& texture, double focal_px, const PoseDeltaParams& config)
+                      const TextureObservations& texture, const PoseDeltaParams& config)
     : config_(config),
       geometry_(reference_surface, reference, current_surface, current),
-      texture_(texture, focal_px, config.min_texture_sigma_px),
+      texture_(texture, config.min_texture_sigma_px),
       prior_(priorInformation(config))
   {
     const double depth = sceneDepth(current);
@@ -539,12 +543,10 @@ private:
 
 RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
                                      const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
-                                     const std::vector<Eigen::Vector3d>& current,
-                                     const std::vector<TextureConstraint>& texture, double focal_px,
+                                     const std::vector<Eigen::Vector3d>& current, const TextureObservations& texture,
                                      const Eigen::Isometry3d& initial, const PoseDeltaParams& config)
 {
-  return SurfaceRegistration(reference_surface, reference, current_surface, current, texture, focal_px, config)
-      .run(initial);
+  return SurfaceRegistration(reference_surface, reference, current_surface, current, texture, config).run(initial);
 }
 
 }  // namespace structured_light_stabilizer

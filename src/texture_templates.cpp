@@ -264,13 +264,71 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
   return true;
 }
 
+namespace
+{
+// The model's normal-equation right-hand side b = J^T r and the residual sum
+// rr = r^T r of a window of template values T (gradients GX, GY, weights M,
+// rows of `stride`) against `image` sampled at (x0, y0) + (fx, fy) + offset.
+// Residual r = I(q + xi) - T(xi); the model I = (a + ax xi_x + ay xi_y) T + b
+// is linear in its photometric parameters, so each pass solves for them
+// afresh (from a = 1, the others 0) together with the shift increment.
+struct WindowSums
+{
+  cv::Vec<double, 6> b;
+  double rr = 0.0;
+};
+
+WindowSums windowSums(const cv::Mat& image, int x0, int y0, float fx, float fy, int h, int stride, const float* T,
+                      const float* GX, const float* GY, const float* M)
+{
+  // Integer window offsets: the bilinear weights are the same for every sample.
+  const float w00 = (1 - fx) * (1 - fy), w01 = fx * (1 - fy), w10 = (1 - fx) * fy, w11 = fx * fy;
+  const float inv_h = 1.0f / static_cast<float>(std::max(h, 1));
+  const int width = 2 * h + 1;
+  float a0[kLanes] = {}, a1[kLanes] = {}, a2[kLanes] = {}, a3[kLanes] = {}, a4[kLanes] = {}, a5[kLanes] = {},
+        a6[kLanes] = {};
+  for (int dy = 0; dy < width; ++dy)
+  {
+    const float* r0 = image.ptr<float>(y0 - h + dy) + (x0 - h);
+    const float* r1 = image.ptr<float>(y0 - h + dy + 1) + (x0 - h);
+    const size_t o = static_cast<size_t>(dy) * stride;
+    const float ey = static_cast<float>(dy - h) * inv_h;
+    for (int c = 0; c < stride; c += kLanes)
+      for (int l = 0; l < kLanes; ++l)
+      {
+        const int x = c + l;
+        const float v = w00 * r0[x] + w01 * r0[x + 1] + w10 * r1[x] + w11 * r1[x + 1];
+        const float r = M[o + x] * (v - T[o + x]);
+        const float tr = T[o + x] * r;
+        a0[l] += GX[o + x] * r;
+        a1[l] += GY[o + x] * r;
+        a2[l] += tr;
+        a3[l] += r;
+        a4[l] += tr * (static_cast<float>(x - h) * inv_h);
+        a5[l] += tr * ey;
+        a6[l] += r * r;
+      }
+  }
+  WindowSums s;
+  for (int l = 0; l < kLanes; ++l)
+  {
+    s.b[0] += a0[l];
+    s.b[1] += a1[l];
+    s.b[2] -= a2[l];
+    s.b[3] -= a3[l];
+    s.b[4] -= a4[l];
+    s.b[5] -= a5[l];
+    s.rr += a6[l];
+  }
+  return s;
+}
+}  // namespace
+
 bool TextureTracker::refine(const Template& t, const std::vector<float>& values, const cv::Mat& image,
                             const std::vector<float>& mask, const cv::Matx66d& inverse_normal,
                             const cv::Matx66d& inverse_signal, cv::Point2d* q, double* residual_ss) const
 {
-  const int h = refinementHalf();
-  const int width = 2 * h + 1, stride = paddedWidth(width);
-  const float inv_h = 1.0f / static_cast<float>(std::max(h, 1));
+  const int h = refinementHalf(), stride = paddedWidth(2 * h + 1);
   const cv::Point2d start = *q;
   double qx = q->x, qy = q->y;
   for (int it = 0; it < config_.refinement_iterations; ++it)
@@ -278,57 +336,13 @@ bool TextureTracker::refine(const Template& t, const std::vector<float>& values,
     const int x0 = static_cast<int>(std::floor(qx)), y0 = static_cast<int>(std::floor(qy));
     if (x0 - h < 0 || y0 - h < 0 || x0 - h + stride + 1 >= image.cols || y0 + h + 1 >= image.rows)
       return false;
-    // Integer window offsets: the bilinear weights are the same for every sample.
-    const float fx = static_cast<float>(qx - x0), fy = static_cast<float>(qy - y0);
-    const float w00 = (1 - fx) * (1 - fy), w01 = fx * (1 - fy), w10 = (1 - fx) * fy, w11 = fx * fy;
-    // Residual r = I(q + xi) - T(xi). The model I = (a + ax xi_x + ay xi_y) T + b
-    // is linear in its photometric parameters, so each pass solves for them
-    // afresh (from a = 1, the others 0) together with the shift increment.
-    float a0[kLanes] = {}, a1[kLanes] = {}, a2[kLanes] = {}, a3[kLanes] = {}, a4[kLanes] = {}, a5[kLanes] = {},
-          a6[kLanes] = {};
-    for (int dy = 0; dy < width; ++dy)
-    {
-      const float* r0 = image.ptr<float>(y0 - h + dy) + (x0 - h);
-      const float* r1 = image.ptr<float>(y0 - h + dy + 1) + (x0 - h);
-      const size_t o = static_cast<size_t>(dy) * stride;
-      const float* T = &values[o];
-      const float* GX = &t.gx[o];
-      const float* GY = &t.gy[o];
-      const float* M = &mask[o];
-      const float ey = static_cast<float>(dy - h) * inv_h;
-      for (int c = 0; c < stride; c += kLanes)
-        for (int l = 0; l < kLanes; ++l)
-        {
-          const int x = c + l;
-          const float v = w00 * r0[x] + w01 * r0[x + 1] + w10 * r1[x] + w11 * r1[x + 1];
-          const float r = M[x] * (v - T[x]);
-          const float tr = T[x] * r;
-          a0[l] += GX[x] * r;
-          a1[l] += GY[x] * r;
-          a2[l] += tr;
-          a3[l] += r;
-          a4[l] += tr * (static_cast<float>(x - h) * inv_h);
-          a5[l] += tr * ey;
-          a6[l] += r * r;
-        }
-    }
-    cv::Vec<double, kParams> b;
-    double rr = 0.0;
-    for (int l = 0; l < kLanes; ++l)
-    {
-      b[0] += a0[l];
-      b[1] += a1[l];
-      b[2] -= a2[l];
-      b[3] -= a3[l];
-      b[4] -= a4[l];
-      b[5] -= a5[l];
-      rr += a6[l];
-    }
+    const WindowSums s = windowSums(image, x0, y0, static_cast<float>(qx - x0), static_cast<float>(qy - y0), h, stride,
+                                    values.data(), t.gx.data(), t.gy.data(), mask.data());
     // Least squares with the template as it is (its noise included): the
     // residual it leaves, rr - b^T N^-1 b, and the gain, which regression
     // dilution pulls towards 0 when the window is not the template's texture.
-    const cv::Vec<double, kParams> fit = -(inverse_normal * b);
-    *residual_ss = std::max(0.0, rr + b.dot(fit));
+    const cv::Vec<double, kParams> fit = -(inverse_normal * s.b);
+    *residual_ss = std::max(0.0, s.rr + s.b.dot(fit));
     if (!(1.0 + fit[2] >= kMinGain && 1.0 + fit[2] <= kMaxGain))
       return false;
     // The step with the template noise's share taken out of the normal
@@ -336,7 +350,7 @@ bool TextureTracker::refine(const Template& t, const std::vector<float>& values,
     // share of the gradient energy, and stopping early would leave every
     // window a little towards its prediction, a common error). The step is
     // taken along the template's gradient; the image's is the gain times that.
-    const cv::Vec<double, kParams> step = -(inverse_signal * b);
+    const cv::Vec<double, kParams> step = -(inverse_signal * s.b);
     const double gain = std::max(1.0 + step[2], kMinGain);
     const double sx = step[0] / gain, sy = step[1] / gain;
     qx += sx;

@@ -5,6 +5,7 @@
 //
 // Usage: evaluate_pose_delta [scenes (comma list, default all)] [first seed (1)]
 //        [seeds (4)] [frames per seed (30)] [name=value ...]
+// dt=seconds sets the time between frames (default 0.1).
 // name=value sets a PoseDeltaParams field (numbers and bools, 0/1), e.g.
 // use_texture=0 texture_refinement_window_px=31.
 // Scenes: weak_texture, missing_dots, worst_snr, flat_textured, rough, textureless.
@@ -70,7 +71,9 @@ bool setParam(const std::string& setting, PoseDeltaParams* p)
       {"freeze_factor", &p->freeze_factor},
       {"texture_min_snr", &p->texture_min_snr},
       {"texture_max_sigma_px", &p->texture_max_sigma_px},
-      {"min_geometry_sigma_m", &p->min_geometry_sigma_m}};
+      {"min_geometry_sigma_m", &p->min_geometry_sigma_m},
+      {"filter_acceleration_noise", &p->filter_acceleration_noise},
+      {"filter_angular_acceleration_noise", &p->filter_angular_acceleration_noise}};
   const std::vector<std::pair<const char*, int*>> ints = {
       {"texture_max_features", &p->texture_max_features},
       {"texture_min_features", &p->texture_min_features},
@@ -80,8 +83,10 @@ bool setParam(const std::string& setting, PoseDeltaParams* p)
       {"max_iterations", &p->max_iterations},
       {"texture_max_level", &p->texture_max_level},
       {"texture_min_level", &p->texture_min_level}};
-  const std::vector<std::pair<const char*, bool*>> bools = {
-      {"use_texture", &p->use_texture}, {"symmetric", &p->symmetric}, {"texture_whole_image", &p->texture_whole_image}};
+  const std::vector<std::pair<const char*, bool*>> bools = {{"use_texture", &p->use_texture},
+                                                            {"symmetric", &p->symmetric},
+                                                            {"texture_whole_image", &p->texture_whole_image},
+                                                            {"filter", &p->filter}};
   for (const auto& d : doubles)
     if (name == d.first)
       return (*d.second = v, true);
@@ -103,8 +108,11 @@ int main(int argc, char** argv)
   const int seeds = argc > 3 ? std::max(1, std::atoi(argv[3])) : 4;
   const int frames = argc > 4 ? std::max(1, std::atoi(argv[4])) : 30;
   PoseDeltaParams params;
+  double dt = 0.1;
   for (int a = 5; a < argc; ++a)
-    if (!setParam(argv[a], &params))
+    if (std::string(argv[a]).rfind("dt=", 0) == 0)
+      dt = std::atof(argv[a] + 3);
+    else if (!setParam(argv[a], &params))
     {
       std::cerr << "unknown or bad setting: " << argv[a] << "\n";
       return 2;
@@ -117,7 +125,7 @@ int main(int argc, char** argv)
       const uint32_t seed = static_cast<uint32_t>(s);
       std::string log;
       // Lock at a seed-dependent instant (not at rest), as the rostest does.
-      const ChainTally one = runChain(chainScene(name, seed), params, 0.37 * (s - 1), frames, 0.1, &log);
+      const ChainTally one = runChain(chainScene(name, seed), params, 0.37 * (s - 1), frames, dt, &log);
       print("  " + name + " seed " + std::to_string(s), one);
       std::cout << log;
       all.add(one);

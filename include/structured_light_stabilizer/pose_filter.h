@@ -41,8 +41,11 @@ public:
   explicit PoseFilter(const PoseFilterParams& params = PoseFilterParams()) : params_(params) {}
 
   void setParams(const PoseFilterParams& params) { params_ = params; }
-  // Forgets everything (e.g. a new reference).
+  // Forgets everything.
   void reset() { started_ = false; }
+  // A new reference at the current pose: the pose becomes the identity
+  // (exactly known), the velocity and its uncertainty stay.
+  void relock();
   bool started() const { return started_; }
 
   // Prediction to `stamp_s` and update with the measurement; returns false

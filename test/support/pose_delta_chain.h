@@ -38,6 +38,11 @@ struct ChainScene
   std::string name;
   SimulatorParams sim;
   double drop_fraction = 0.0;  // spots removed after detection, per frame
+  // Strobed operation (#20): besides each frame at t, its projector-off
+  // (ambient) partner exposed at t + strobe_gap_s; 0 = no strobing. With
+  // strobe_both, also the one at t - strobe_gap_s (the frames around it).
+  double strobe_gap_s = 0.0;
+  bool strobe_both = false;
 };
 
 // The rig jitter of the issue: +-10 mm, +-1 deg per axis.
@@ -52,7 +57,9 @@ inline SimulatorParams chainBase(uint32_t seed)
 }
 
 // The issue's scenes by name: "weak_texture", "missing_dots", "worst_snr",
-// "flat_textured", "textureless", "rough" (the default rock). Unknown names
+// "flat_textured", "textureless", "rough" (the default rock), "strobed" (the
+// default rock with the ambient frames of 60 Hz strobing one field before and
+// after each frame; "strobed_one_side": only the one before). Unknown names
 // give the default rock.
 inline ChainScene chainScene(const std::string& name, uint32_t seed)
 {
@@ -78,6 +85,11 @@ inline ChainScene chainScene(const std::string& name, uint32_t seed)
   }
   else if (name == "flat_textured")
     s.sim.rock.relief_m = 0.0;
+  else if (name == "strobed" || name == "strobed_one_side")
+  {
+    s.strobe_gap_s = -1.0 / 60.0;
+    s.strobe_both = name == "strobed";
+  }
   else if (name == "textureless")
   {
     s.sim.rock.relief_m = 0.0;
@@ -128,6 +140,19 @@ public:
     out.input.points = tri.points;
     out.input.image = f.image;
     out.input.texture_channel = 2;  // bgr8: red carries the rock, not the green dots
+    out.input.stamp_s = t;
+    if (scene_.strobe_gap_s != 0.0)
+    {
+      FrameRequest off;
+      off.projector_on = false;
+      out.input.ambient_image = sim_.render(t + scene_.strobe_gap_s, off).image;
+      out.input.ambient_stamp_s = t + scene_.strobe_gap_s;
+      if (scene_.strobe_both)
+      {
+        out.input.ambient_after_image = sim_.render(t - scene_.strobe_gap_s, off).image;
+        out.input.ambient_after_stamp_s = t - scene_.strobe_gap_s;
+      }
+    }
     for (size_t b = 0; b < tri.points.size(); ++b)
     {
       if (!tri.points[b].allFinite())
