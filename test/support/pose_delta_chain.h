@@ -18,6 +18,7 @@
 #include <vector>
 
 #include <Eigen/Geometry>
+#include <opencv2/imgproc.hpp>
 
 #include "structured_light_stabilizer/beam_tracker.h"
 #include "structured_light_stabilizer/pose_delta.h"
@@ -43,6 +44,9 @@ struct ChainScene
   // strobe_both, also the one at t - strobe_gap_s (the frames around it).
   double strobe_gap_s = 0.0;
   bool strobe_both = false;
+  // PoseDelta gets the frame as mono8 (luminance): dots as bright as the
+  // rock's texture in the same channel, as on a monochrome camera.
+  bool mono = false;
 };
 
 // The rig jitter of the issue: +-10 mm, +-1 deg per axis.
@@ -59,8 +63,9 @@ inline SimulatorParams chainBase(uint32_t seed)
 // The issue's scenes by name: "weak_texture", "missing_dots", "worst_snr",
 // "flat_textured", "textureless", "rough" (the default rock), "strobed" (the
 // default rock with the ambient frames of 60 Hz strobing one field before and
-// after each frame; "strobed_one_side": only the one before). Unknown names
-// give the default rock.
+// after each frame; "strobed_one_side": only the one before), "mono" (the
+// default rock, PoseDelta given the frame as mono8). Unknown names give the
+// default rock.
 inline ChainScene chainScene(const std::string& name, uint32_t seed)
 {
   ChainScene s;
@@ -85,6 +90,8 @@ inline ChainScene chainScene(const std::string& name, uint32_t seed)
   }
   else if (name == "flat_textured")
     s.sim.rock.relief_m = 0.0;
+  else if (name == "mono")
+    s.mono = true;
   else if (name == "strobed" || name == "strobed_one_side")
   {
     s.strobe_gap_s = -1.0 / 60.0;
@@ -140,6 +147,8 @@ public:
     out.input.points = tri.points;
     out.input.image = f.image;
     out.input.texture_channel = 2;  // bgr8: red carries the rock, not the green dots
+    if (scene_.mono)
+      cv::cvtColor(f.image, out.input.image, cv::COLOR_BGR2GRAY);
     out.input.stamp_s = t;
     if (scene_.strobe_gap_s != 0.0)
     {
