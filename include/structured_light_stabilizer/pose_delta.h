@@ -3,7 +3,8 @@
 // Contract: input per frame is the organised beam map (rows x cols points,
 // camera optical frame, metres, NaN = no point; beam = r * cols + c) and,
 // optionally, the camera image of the same instant (CV_8UC3 or CV_8UC1) with
-// its CameraModel. Output is the PoseDelta convention of docs/interface.md:
+// its CameraModel, its time stamp, and in strobed operation the projector-off
+// frames around it. Output is the PoseDelta convention of docs/interface.md:
 // the transform T with p_cur = T * p_ref for any rock point, a 6x6 covariance
 // in the order (tx, ty, tz, rx, ry, rz) (metres, radians; a small rotation
 // vector applied on the current-frame side, se3.h), the RMS point-to-surface
@@ -21,8 +22,10 @@
 // from the dots and lifted to 3D on the reference surface (or, off the dot
 // map, on a plane through it, with the depth left free; texture_landmarks.h),
 // adds reprojection constraints that pin the axes a smooth or flat rock
-// leaves free (in-plane translation, roll about the view axis). Both go into
-// one Gauss-Newton problem on se(3) (registration.h).
+// leaves free (in-plane translation, roll about the view axis), each weighted
+// by its measured covariance (texture_tracker.h). Both go into one
+// Gauss-Newton problem on se(3) (registration.h). A constant-velocity filter
+// follows the motion (pose_filter.h); its pose is the output only when asked.
 #pragma once
 
 #include <array>
