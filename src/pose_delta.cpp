@@ -41,43 +41,6 @@ PoseDeltaParams predictionParams(const PoseDeltaParams& config, bool firm_prior)
 
 }  // namespace
 
-std::string PoseDeltaParams::validate() const
-{
-  std::ostringstream why;
-  if (min_points < 6)
-    why << "min_points must be at least 6 (six unknowns); ";
-  if (max_iterations < 1)
-    why << "max_iterations must be positive; ";
-  if (!(huber_k > 0.0))
-    why << "huber_k must be positive; ";
-  if (!(min_geometry_sigma_m > 0.0) || !(min_texture_sigma_px > 0.0))
-    why << "noise floors must be positive; ";
-  if (!(prior_sigma_translation_m > 0.0) || !(prior_sigma_rotation_rad > 0.0))
-    why << "prior sigmas must be positive; ";
-  if (!(max_sigma_translation_m > 0.0) || !(max_sigma_rotation_rad > 0.0) || !(max_rms_residual_m > 0.0))
-    why << "validity bounds must be positive; ";
-  if (!(freeze_factor >= 1.0))
-    why << "freeze_factor must be at least 1; ";
-  if (!(max_edge_ratio > 1.0))
-    why << "max_edge_ratio must exceed 1; ";
-  if (texture_window_px < 5 || texture_window_px % 2 == 0)
-    why << "texture_window_px must be odd and >= 5; ";
-  if (texture_refinement_window_px != 0 && (texture_refinement_window_px < 5 || texture_refinement_window_px % 2 == 0))
-    why << "texture_refinement_window_px must be 0 (off) or odd and >= 5; ";
-  if (texture_pyramid_levels < 0 || texture_pyramid_levels > 6)
-    why << "texture_pyramid_levels must be in [0, 6]; ";
-  if (!(texture_error_inflation >= 1.0))
-    why << "texture_error_inflation must be at least 1; ";
-  if (!(texture_depth_sigma_m >= 0.0) || !(texture_extrapolated_depth_sigma_m > 0.0))
-    why << "texture depth sigmas must not be negative (the extrapolated one positive); ";
-  if (texture_max_features < 0 || texture_min_features < 0)
-    why << "texture feature counts must not be negative; ";
-  std::string s = why.str();
-  if (s.size() >= 2)
-    s.resize(s.size() - 2);
-  return s;
-}
-
 struct PoseDeltaEstimator::Frame
 {
   int rows = 0;
@@ -88,7 +51,7 @@ struct PoseDeltaEstimator::Frame
 
 struct PoseDeltaEstimator::TextureMeasurement
 {
-  std::vector<TextureConstraint> constraints;
+  TextureObservations observations;
   std::string note;        // why the texture is not used ("" when used or not wanted)
   bool predicted = false;  // the initial guess comes from the coarse texture fit
 };
@@ -107,6 +70,10 @@ void PoseDeltaEstimator::setParams(const PoseDeltaParams& config)
     throw std::invalid_argument("PoseDelta config: " + why);
   const bool mode_changed = config.mode != config_.mode;
   config_ = config;
+  PoseFilterParams fp;
+  fp.acceleration_noise = config.filter_acceleration_noise;
+  fp.angular_acceleration_noise = config.filter_angular_acceleration_noise;
+  motion_.setParams(fp);
   if (mode_changed)
     requestLock();
 }
@@ -169,9 +136,23 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
   ref->points = frame.points;
   ref->surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
   texture_->clear();
-  if (config_.use_texture && has_camera_ && !frame.image.empty() && frame.image.cols == camera_.width &&
-      frame.image.rows == camera_.height)
-    texture_->lock(config_, camera_, frame.image, frame.texture_channel, frame.points, ref->surface);
+  // A strobed pair's ambient frame carries the texture without the dots.
+  reference_ambient_ = !frame.ambient_image.empty();
+  const cv::Mat& image = textureImage(frame);
+  if (config_.use_texture && has_camera_ && !image.empty() && image.cols == camera_.width &&
+      image.rows == camera_.height)
+  {
+    TextureExposure exposure;
+    exposure.offset = exposureOffset(frame);
+    exposure.dots_in_image = !reference_ambient_;
+    texture_->lock(config_, camera_, image, frame.texture_channel, frame.points, ref->surface, exposure);
+    // Two ambient frames around the lock: each feature is lifted where it
+    // was at the instant of the points, no velocity needed.
+    const double fraction = bracketFraction(frame);
+    if (fraction >= 0.0)
+      texture_->centreBetween(frame.ambient_after_image, frame.texture_channel, fraction, camera_, frame.points,
+                              ref->surface, config_);
+  }
   reference_ = std::move(ref);
   has_reference_ = true;
   lock_pending_ = false;
@@ -214,6 +195,7 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   const RegistrationOutput reg = registerFrame(frame, texture, initial);
   report(reg, texture, valid_points, &result);
   advance(frame, result, reg);
+  track(frame, &result);
   return result;
 }
 
@@ -228,7 +210,13 @@ std::string PoseDeltaEstimator::referenceFor(const PoseDeltaInput& frame, PoseDe
     if (probe.validCells() < 4)
       return "cannot lock on this map: only " + std::to_string(probe.validCells()) +
              " surface cells between valid neighbouring dots";
+    // The rig's velocity stays what it was; the pose starts again here.
+    // (A reference centred between two ambient frames is at the instant of
+    // the points: its gap's motion is zero.)
+    lock_velocity_known_ = motion_.started() || !frame.ambient_after_image.empty();
+    lock_velocity_ = motion_.started() && frame.ambient_after_image.empty() ? motion_.velocity() : Vector6d::Zero();
     lock(frame);
+    motion_.relock();
     chained_ = Eigen::Isometry3d::Identity();
     chained_covariance_ = Matrix6d::Zero();
     result->locked_now = true;
@@ -241,6 +229,33 @@ std::string PoseDeltaEstimator::referenceFor(const PoseDeltaInput& frame, PoseDe
   return "";
 }
 
+const cv::Mat& PoseDeltaEstimator::textureImage(const PoseDeltaInput& frame) const
+{
+  return reference_ambient_ ? frame.ambient_image : frame.image;
+}
+
+double PoseDeltaEstimator::bracketFraction(const PoseDeltaInput& frame) const
+{
+  if (!reference_ambient_ || frame.ambient_image.empty() || frame.ambient_after_image.empty())
+    return -1.0;
+  const double fraction =
+      (frame.stamp_s - frame.ambient_stamp_s) / (frame.ambient_after_stamp_s - frame.ambient_stamp_s);
+  return fraction >= 0.0 && fraction <= 1.0 ? fraction : -1.0;
+}
+
+// The reference texture was lifted from the lock's ambient frame as if it
+// had been exposed with the points: what the texture measures is the motion
+// between the two ambient exposures, the pose of the points but for the
+// change of velocity since the lock, times the gap.
+Eigen::Isometry3d PoseDeltaEstimator::exposureOffset(const PoseDeltaInput& frame) const
+{
+  const double gap = frame.ambient_stamp_s - frame.stamp_s;
+  if (!reference_ambient_ || !std::isfinite(gap) || !motion_.started() || !lock_velocity_known_ ||
+      bracketFraction(frame) >= 0.0)
+    return Eigen::Isometry3d::Identity();
+  return applyIncrement((motion_.velocity() - lock_velocity_) * gap, Eigen::Isometry3d::Identity());
+}
+
 std::string PoseDeltaEstimator::textureUnavailable(const PoseDeltaInput& frame) const
 {
   if (!has_camera_)
@@ -249,18 +264,20 @@ std::string PoseDeltaEstimator::textureUnavailable(const PoseDeltaInput& frame) 
     return "the reference has no image (lock again with images flowing)";
   if (texture_->empty())
     return "no trackable texture in the reference image";
-  if (frame.image.empty())
-    return "no image for this cloud";
-  if (frame.image.cols != camera_.width || frame.image.rows != camera_.height)
+  const cv::Mat& image = textureImage(frame);
+  if (image.empty())
+    return reference_ambient_ ? "no ambient image for this cloud (the reference was locked on one)"
+                              : "no image for this cloud";
+  if (image.cols != camera_.width || image.rows != camera_.height)
     return "image size differs from camera_info";
   return "";
 }
 
-bool PoseDeltaEstimator::refit(const PoseDeltaInput& frame, const std::vector<TextureConstraint>& texture,
-                               double focal_px, const PoseDeltaParams& params, Eigen::Isometry3d* pose) const
+bool PoseDeltaEstimator::refit(const PoseDeltaInput& frame, const TextureObservations& texture,
+                               const PoseDeltaParams& params, Eigen::Isometry3d* pose) const
 {
-  const RegistrationOutput fit = registerToSurface(reference_->surface, reference_->points, nullptr, frame.points,
-                                                   texture, focal_px, *pose, params);
+  const RegistrationOutput fit =
+      registerToSurface(reference_->surface, reference_->points, nullptr, frame.points, texture, *pose, params);
   if (fit.points_used < config_.min_points || !fit.transform.matrix().allFinite())
     return false;
   *pose = fit.transform;
@@ -274,35 +291,58 @@ PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const 
   m.note = textureUnavailable(frame);
   if (!m.note.empty())
     return m;
-  // Geometry first: on a rough rock it places the features to within a
-  // pixel or two, on any surface it fixes distance and tilts.
-  // Only a prediction: one direction, a few iterations, no second phase;
-  // a firm prior keeps the axes a smooth surface leaves free near the
-  // last estimate (with the weak one they wander by degrees on noise).
-  refit(frame, {}, 1.0, predictionParams(config_, true), initial);
-  if (!texture_->setFrame(camera_, frame.image, frame.texture_channel, frame.points))
+  if (!texture_->setFrame(camera_, textureImage(frame), frame.texture_channel, frame.points, !reference_ambient_))
   {
     m.note = "image unusable for tracking";
     return m;
   }
+  // The texture image was exposed at offset * T.
+  const Eigen::Isometry3d offset = exposureOffset(frame);
+  m.observations.focal_px = camera_.fx;
+  m.observations.offset = offset;
+  // Geometry alone places the features on a rough rock to within a pixel or
+  // two and fixes distance and tilts on any surface: the prediction when the
+  // texture cannot give one. Only a prediction: one direction, a few
+  // iterations, no second phase; a firm prior keeps the axes a smooth
+  // surface leaves free near the last estimate (with the weak one they
+  // wander by degrees on noise).
+  const PoseDeltaParams geometric = predictionParams(config_, true);
   std::vector<TextureConstraint> tracked;
   if (config_.texture_refinement_window_px > 0)
   {
-    // A few features tracked over the pyramid (wide capture range) fix
-    // the in-plane axes well enough to predict every feature to a
-    // fraction of a pixel; the gain-and-offset refinement from there is
-    // the measurement, and costs a fraction of pyramidal tracking.
-    const std::vector<TextureConstraint> coarse = texture_->trackCoarse(*initial);
+    // A few features tracked over the pyramid from the last estimate (a
+    // wide capture range) fix the in-plane axes well enough to predict
+    // every feature to a fraction of a pixel; the gain-and-offset
+    // refinement from there is the measurement, and costs a fraction of
+    // pyramidal tracking.
+    // Between two ambient frames: the coarse track is on the first, the rig's
+    // velocity carries the prediction to each (the measurement needs none).
+    const double fraction = bracketFraction(frame);
+    const Vector6d v = motion_.started() ? motion_.velocity() : Vector6d::Zero();
+    const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
+    const Eigen::Isometry3d first =
+        fraction >= 0.0 ? applyIncrement(v * (frame.ambient_stamp_s - frame.stamp_s), I) : offset;
+    const std::vector<TextureConstraint> coarse = texture_->trackCoarse(first * *initial);
     if (static_cast<int>(coarse.size()) >= kMinCoarseFeatures)
-      m.predicted = refit(frame, coarse, camera_.fx, predictionParams(config_, false), initial);
-    tracked = texture_->refineAll(*initial);
+      m.predicted = refit(frame, {coarse, camera_.fx, first}, predictionParams(config_, false), initial);
+    else
+      refit(frame, TextureObservations(), geometric, initial);
+    if (fraction >= 0.0)
+      tracked = texture_->refineBetween(
+          first * *initial, applyIncrement(v * (frame.ambient_after_stamp_s - frame.stamp_s), I) * *initial,
+          frame.ambient_image, frame.ambient_after_image, frame.texture_channel, fraction);
+    else
+      tracked = texture_->refineAll(offset * *initial);
   }
   else
-    tracked = texture_->trackAll(*initial);
+  {
+    refit(frame, TextureObservations(), geometric, initial);
+    tracked = texture_->trackAll(offset * *initial);
+  }
   if (static_cast<int>(tracked.size()) < config_.texture_min_features)
     m.note = "only " + std::to_string(tracked.size()) + " texture features tracked";
   else
-    m.constraints = std::move(tracked);
+    m.observations.constraints = std::move(tracked);
   return m;
 }
 
@@ -318,7 +358,7 @@ RegistrationOutput PoseDeltaEstimator::registerFrame(const PoseDeltaInput& frame
   if (texture.predicted)
     solve.max_iterations = std::min(config_.max_iterations, kIterationsAfterCoarseFit);
   return registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current_surface : nullptr,
-                           frame.points, texture.constraints, has_camera_ ? camera_.fx : 1.0, initial, solve);
+                           frame.points, texture.observations, initial, solve);
 }
 
 void PoseDeltaEstimator::report(const RegistrationOutput& reg, const TextureMeasurement& texture, int valid_points,
@@ -328,7 +368,7 @@ void PoseDeltaEstimator::report(const RegistrationOutput& reg, const TextureMeas
   result->features_used = reg.features_used;
   result->iterations = reg.iterations;
   result->sigma_geometry_m = reg.sigma_geometry_m;
-  result->sigma_texture_px = texture.constraints.empty() ? 0.0 : reg.sigma_texture_px;
+  result->sigma_texture_px = texture.observations.constraints.empty() ? 0.0 : reg.sigma_texture_px;
   result->rms_residual_m = reg.rms_geometry_m;
   result->transform = reg.transform;
   result->covariance = reg.covariance;
@@ -408,6 +448,46 @@ void PoseDeltaEstimator::advance(const PoseDeltaInput& frame, const PoseDeltaRes
   }
   else
     last_estimate_ = reg.transform;
+}
+
+}  // namespace structured_light_stabilizer
+
+namespace structured_light_stabilizer
+{
+
+void PoseDeltaEstimator::track(const PoseDeltaInput& frame, PoseDeltaResult* result)
+{
+  result->raw_transform = result->transform;
+  result->raw_covariance = result->covariance;
+  if (!has_reference_)
+    return;
+  // The motion is always followed (its velocity carries a strobed ambient
+  // frame to the instant of the dots); the result becomes the filter's only
+  // when asked.
+  if (result->valid)
+  {
+    // Without a velocity at the lock, the first one known afterwards stands for it.
+    if (motion_.update(frame.stamp_s, result->transform, result->covariance) && !lock_velocity_known_)
+    {
+      lock_velocity_ = motion_.velocity();
+      lock_velocity_known_ = true;
+    }
+    if (!config_.filter)
+      return;
+    result->transform = motion_.pose();
+    result->covariance = motion_.poseCovariance();
+    result->filtered = true;
+    return;
+  }
+  // An invalid frame: the filter's prediction, still not valid.
+  Eigen::Isometry3d pose;
+  Matrix6d covariance;
+  if (config_.filter && motion_.predict(frame.stamp_s, &pose, &covariance))
+  {
+    result->transform = pose;
+    result->covariance = covariance;
+    result->filtered = true;
+  }
 }
 
 }  // namespace structured_light_stabilizer

@@ -5,6 +5,8 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "structured_light_stabilizer/detail/math.h"
+
 namespace structured_light_stabilizer
 {
 
@@ -45,193 +47,230 @@ cv::Mat TextureTracker::prepare(const cv::Mat& image, int channel, const cv::Rec
 
 namespace
 {
-// The refinement sums run over rows padded to a multiple of this many lanes,
-// with independent per-lane accumulators, so that the compiler vectorises
-// them without reassociating float sums (the padding has zero weight).
-constexpr int kLanes = 8;
-int paddedWidth(int width)
-{
-  return (width + kLanes - 1) / kLanes * kLanes;
-}
+// Noise is estimated per block of this many pixels (shot noise follows the brightness).
+constexpr int kNoiseBlock = 32;
+// Immerkaer's operator (the difference of two Laplacians): flat on any
+// linear or quadratic brightness, 36 sigma^2 on white noise.
+const float kImmerkaer[9] = {1, -2, 1, -2, 4, -2, 1, -2, 1};
 }  // namespace
-
-// Zeroes the weight of the window samples within dot_clearance_px of a dot;
-// `dots` relative to the window centre. False when no dot touches the window.
-bool TextureTracker::maskDots(const std::vector<cv::Point2f>& dots, const cv::Point2f& centre,
-                              std::vector<float>* mask) const
-{
-  const int h = config_.refinement_window_px / 2, stride = paddedWidth(2 * h + 1);
-  const float reach = static_cast<float>(config_.dot_clearance_px);
-  bool any = false;
-  for (const cv::Point2f& d : dots)
-  {
-    const float cx = d.x - centre.x, cy = d.y - centre.y;
-    if (std::abs(cx) > h + reach || std::abs(cy) > h + reach)
-      continue;
-    any = true;
-    const int ylo = std::max(-h, static_cast<int>(std::floor(cy - reach))),
-              yhi = std::min(h, static_cast<int>(std::ceil(cy + reach)));
-    const int xlo = std::max(-h, static_cast<int>(std::floor(cx - reach))),
-              xhi = std::min(h, static_cast<int>(std::ceil(cx + reach)));
-    for (int dy = ylo; dy <= yhi; ++dy)
-      for (int dx = xlo; dx <= xhi; ++dx)
-        if ((dx - cx) * (dx - cx) + (dy - cy) * (dy - cy) < reach * reach)
-          (*mask)[static_cast<size_t>(dy + h) * stride + (dx + h)] = 0.0f;
-  }
-  return any;
-}
-
-cv::Matx44d TextureTracker::normalOf(const Template& t, const std::vector<float>& mask) const
-{
-  cv::Matx44d normal = cv::Matx44d::zeros();
-  for (size_t k = 0; k < mask.size(); ++k)
-    if (mask[k] > 0.0f)
-    {
-      const cv::Vec4d j(t.gx[k], t.gy[k], -t.value[k], -1.0);
-      normal += j * j.t();
-    }
-  return normal;
-}
-
-void TextureTracker::buildTemplates(const cv::Mat& roi_image, const std::vector<cv::Point2f>& dots)
-{
-  templates_.assign(features_.size(), Template());
-  if (!config_.photometric_refinement)
-    return;
-  const int h = config_.refinement_window_px / 2;
-  const int width = 2 * h + 1, stride = paddedWidth(width);
-  for (size_t i = 0; i < features_.size(); ++i)
-  {
-    // Features sit on whole pixels (goodFeaturesToTrack), so the template is
-    // read without interpolation.
-    const int x0 = cvRound(features_[i].x) - roi_.x, y0 = cvRound(features_[i].y) - roi_.y;
-    if (x0 - h - 1 < 0 || y0 - h - 1 < 0 || x0 + h + 1 >= roi_image.cols || y0 + h + 1 >= roi_image.rows)
-      continue;
-    Template& t = templates_[i];
-    const size_t n = static_cast<size_t>(width) * stride;
-    t.value.assign(n, 0.0f);
-    t.gx.assign(n, 0.0f);
-    t.gy.assign(n, 0.0f);
-    t.mask.assign(n, 0.0f);
-    for (int dy = -h; dy <= h; ++dy)
-    {
-      const uint8_t* row = roi_image.ptr<uint8_t>(y0 + dy);
-      const uint8_t* up = roi_image.ptr<uint8_t>(y0 + dy - 1);
-      const uint8_t* down = roi_image.ptr<uint8_t>(y0 + dy + 1);
-      for (int dx = -h; dx <= h; ++dx)
-      {
-        const size_t k = static_cast<size_t>(dy + h) * stride + (dx + h);
-        const int x = x0 + dx;
-        t.value[k] = row[x];
-        t.gx[k] = 0.5f * (static_cast<float>(row[x + 1]) - static_cast<float>(row[x - 1]));
-        t.gy[k] = 0.5f * (static_cast<float>(down[x]) - static_cast<float>(up[x]));
-        t.mask[k] = 1.0f;
-      }
-    }
-    // The reference's own dots are not rock texture either.
-    maskDots(dots, features_[i], &t.mask);
-    const cv::Matx44d normal = normalOf(t, t.mask);
-    bool invertible = false;
-    t.inverse_normal = normal.inv(cv::DECOMP_CHOLESKY, &invertible);
-    t.ok = invertible && cv::determinant(normal) > 0.0;
-  }
-}
-
-bool TextureTracker::refine(size_t i, const cv::Mat& image, const std::vector<float>& mask,
-                            const cv::Matx44d& inverse_normal, cv::Point2f* p) const
-{
-  const Template& t = templates_[i];
-  const int h = config_.refinement_window_px / 2;
-  const int width = 2 * h + 1, stride = paddedWidth(width);
-  const cv::Point2f start = *p;
-  double qx = p->x, qy = p->y;
-  for (int it = 0; it < config_.refinement_iterations; ++it)
-  {
-    const int x0 = static_cast<int>(std::floor(qx)), y0 = static_cast<int>(std::floor(qy));
-    if (x0 - h < 0 || y0 - h < 0 || x0 - h + stride + 1 >= image.cols || y0 + h + 1 >= image.rows)
-      return false;
-    // Integer window offsets: the bilinear weights are the same for every sample.
-    const float fx = static_cast<float>(qx - x0), fy = static_cast<float>(qy - y0);
-    const float w00 = (1 - fx) * (1 - fy), w01 = fx * (1 - fy), w10 = (1 - fx) * fy, w11 = fx * fy;
-    // Residual r = I(q + xi) - T(xi). The model I = a T + b is linear in a
-    // and b, so each pass solves for them afresh (from a = 1, b = 0)
-    // together with the shift increment.
-    float a0[kLanes] = {}, a1[kLanes] = {}, a2[kLanes] = {}, a3[kLanes] = {};
-    for (int dy = 0; dy < width; ++dy)
-    {
-      const float* r0 = image.ptr<float>(y0 - h + dy) + (x0 - h);
-      const float* r1 = image.ptr<float>(y0 - h + dy + 1) + (x0 - h);
-      const float* T = &t.value[static_cast<size_t>(dy) * stride];
-      const float* GX = &t.gx[static_cast<size_t>(dy) * stride];
-      const float* GY = &t.gy[static_cast<size_t>(dy) * stride];
-      const float* M = &mask[static_cast<size_t>(dy) * stride];
-      for (int c = 0; c < stride; c += kLanes)
-        for (int l = 0; l < kLanes; ++l)
-        {
-          const int x = c + l;
-          const float v = w00 * r0[x] + w01 * r0[x + 1] + w10 * r1[x] + w11 * r1[x + 1];
-          const float r = M[x] * (v - T[x]);
-          a0[l] += GX[x] * r;
-          a1[l] += GY[x] * r;
-          a2[l] += T[x] * r;
-          a3[l] += r;
-        }
-    }
-    double s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-    for (int l = 0; l < kLanes; ++l)
-    {
-      s0 += a0[l];
-      s1 += a1[l];
-      s2 += a2[l];
-      s3 += a3[l];
-    }
-    const cv::Vec4d step = -(inverse_normal * cv::Vec4d(s0, s1, -s2, -s3));
-    // The step is taken along the template's gradient; the image's is the
-    // gain a = 1 + step[2] times that.
-    const double gain = 1.0 + step[2];
-    const double sx = step[0] / std::max(gain, 0.5), sy = step[1] / std::max(gain, 0.5);
-    qx += sx;
-    qy += sy;
-    if (std::hypot(qx - start.x, qy - start.y) > config_.max_refinement_px)
-      return false;
-    if (sx * sx + sy * sy < 1e-4)  // 0.01 px: well below the noise of one feature
-      break;
-  }
-  *p = cv::Point2f(static_cast<float>(qx), static_cast<float>(qy));
-  return true;
-}
 
 void TextureTracker::clear()
 {
   features_.clear();
+  levels_.clear();
   templates_.clear();
   frame_.release();
-  frame_float_.release();
+  frame_ok_ = false;
+  frame_levels_.clear();
   frame_pyramid_.clear();
   reference_pyramid_.clear();
+  reference_levels_.clear();
+  noise_map_.release();
+  reference_noise_ = 0.0;
+  used_levels_ = 0;
   roi_ = cv::Rect();
 }
 
-std::vector<cv::Point2f> TextureTracker::findCorners(const cv::Mat& image, const cv::Mat& mask) const
+// J. Immerkaer, "Fast noise variance estimation", CVIU 64(2), 1996, with the
+// median of the absolute response per block instead of the mean: the dots and
+// the edges of the texture, a small part of each block, then barely count.
+void TextureTracker::estimateNoise(const cv::Mat& roi_image)
 {
-  std::vector<cv::Point2f> corners;
-  if (!(config_.photometric_refinement && config_.min_distance_px >= 4.0))
+  cv::Mat response;
+  cv::filter2D(roi_image, response, CV_32F, cv::Mat(3, 3, CV_32F, const_cast<float*>(kImmerkaer)));
+  response = cv::abs(response);
+  const int bx = (roi_image.cols + kNoiseBlock - 1) / kNoiseBlock,
+            by = (roi_image.rows + kNoiseBlock - 1) / kNoiseBlock;
+  noise_map_.create(by, bx, CV_32F);
+  std::vector<float> block, all;
+  for (int j = 0; j < by; ++j)
+    for (int i = 0; i < bx; ++i)
+    {
+      const cv::Rect r = cv::Rect(i * kNoiseBlock, j * kNoiseBlock, kNoiseBlock, kNoiseBlock) &
+                         cv::Rect(1, 1, roi_image.cols - 2, roi_image.rows - 2);
+      block.clear();
+      for (int y = r.y; y < r.y + r.height; ++y)
+        block.insert(block.end(), response.ptr<float>(y) + r.x, response.ptr<float>(y) + r.x + r.width);
+      // |N(0, 6 sigma)| has its median at 0.6745 * 6 sigma.
+      const float sigma = block.empty() ? 0.0f : detail::median(block) / (6.0f * 0.6745f);
+      noise_map_.at<float>(j, i) = sigma;
+      all.push_back(sigma);
+    }
+  reference_noise_ = detail::median(all);
+}
+
+double TextureTracker::noiseAt(const cv::Point2f& roi_point) const
+{
+  if (noise_map_.empty())
+    return 0.0;
+  const int i = std::min(std::max(static_cast<int>(roi_point.x) / kNoiseBlock, 0), noise_map_.cols - 1);
+  const int j = std::min(std::max(static_cast<int>(roi_point.y) / kNoiseBlock, 0), noise_map_.rows - 1);
+  return noise_map_.at<float>(j, i);
+}
+
+// The `roi` part of `image`'s channel (one pass for bgr8) as CV_32F, lightly
+// blurred when asked.
+bool TextureTracker::floatChannel(const cv::Mat& image, int channel, const cv::Rect& roi, cv::Mat* scratch,
+                                  cv::Mat* out) const
+{
+  if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
   {
-    cv::goodFeaturesToTrack(image, corners, config_.max_features, config_.quality, config_.min_distance_px, mask, 5);
-    return corners;
+    cv::extractChannel(image(roi), *scratch, channel);
+    scratch->convertTo(*out, CV_32F);
   }
-  // Corners for a large refinement window are found as well at half
-  // resolution, at a quarter of the cost (the whole image is ~20 ms at full
-  // resolution, and frame_to_frame mode selects on every frame).
-  cv::Mat half, half_mask;
-  cv::pyrDown(image, half);
-  cv::resize(mask, half_mask, half.size(), 0, 0, cv::INTER_NEAREST);
-  cv::goodFeaturesToTrack(half, corners, config_.max_features, config_.quality, 0.5 * config_.min_distance_px,
-                          half_mask, 3);
-  for (cv::Point2f& c : corners)
-    c = cv::Point2f(static_cast<float>(std::min(2 * cvRound(c.x), image.cols - 1)),
-                    static_cast<float>(std::min(2 * cvRound(c.y), image.rows - 1)));
-  return corners;
+  else if (image.type() == CV_8UC1)
+    image(roi).convertTo(*out, CV_32F);
+  else
+    return false;
+  if (config_.smooth_sigma_px > 0.0)
+    cv::GaussianBlur(*out, *out, cv::Size(0, 0), config_.smooth_sigma_px);
+  return true;
+}
+
+// One cv::pyrDown step from an 8-bit plane straight to CV_32F: the same
+// 5-tap binomial kernel and reflected border, without rounding the result
+// to whole 8-bit levels (at level 1 that rounding would add 0.29 DN of
+// noise to the 0.3 DN the sensor leaves) and without a full-resolution
+// float copy.
+void pyrDownToFloat(const cv::Mat& src, cv::Mat* dst)
+{
+  const int W = src.cols, H = src.rows, w = (W + 1) / 2, h = (H + 1) / 2;
+  dst->create(h, w, CV_32F);
+  std::vector<float> column(static_cast<size_t>(W) + 4);
+  float* c = column.data() + 2;
+  auto reflect = [](int i, int n) { return i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i); };
+  for (int y = 0; y < h; ++y)
+  {
+    const uint8_t* r0 = src.ptr<uint8_t>(reflect(2 * y - 2, H));
+    const uint8_t* r1 = src.ptr<uint8_t>(reflect(2 * y - 1, H));
+    const uint8_t* r2 = src.ptr<uint8_t>(2 * y);
+    const uint8_t* r3 = src.ptr<uint8_t>(reflect(2 * y + 1, H));
+    const uint8_t* r4 = src.ptr<uint8_t>(reflect(2 * y + 2, H));
+    for (int x = 0; x < W; ++x)
+      c[x] = static_cast<float>(r0[x] + r4[x]) + 4.0f * static_cast<float>(r1[x] + r3[x]) + 6.0f * r2[x];
+    c[-1] = c[std::min(1, W - 1)];
+    c[-2] = c[std::min(2, W - 1)];
+    c[W] = c[std::max(W - 2, 0)];
+    c[W + 1] = c[std::max(W - 3, 0)];
+    float* o = dst->ptr<float>(y);
+    for (int x = 0; x < w; ++x)
+    {
+      const float* p = c + 2 * x;
+      o[x] = (p[-2] + p[2] + 4.0f * (p[-1] + p[1]) + 6.0f * p[0]) * (1.0f / 256.0f);
+    }
+  }
+}
+
+// The refinement's float levels first_level .. `levels` - 1 of the ROI
+// (those below first_level left empty) and, at half resolution (level 1 in
+// 8 bits), the base of the Lucas-Kanade pyramid: with the refinement to
+// follow, pyramidal tracking only has to land within a pixel, at a quarter
+// of the cost.
+bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_level, int levels,
+                                 std::vector<cv::Mat>* float_levels, cv::Mat* half)
+{
+  float_levels->resize(static_cast<size_t>(std::max(levels, 2)));
+  if (first_level <= 0 || config_.smooth_sigma_px > 0.0)
+  {
+    if (!floatChannel(image, channel, roi_, &scratch_, &(*float_levels)[0]))
+      return false;
+    cv::pyrDown((*float_levels)[0], (*float_levels)[1]);
+  }
+  else
+  {
+    if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
+      cv::extractChannel(image(roi_), scratch_, channel);
+    else if (image.type() == CV_8UC1)
+      scratch_ = image(roi_);
+    else
+      return false;
+    (*float_levels)[0].release();
+    pyrDownToFloat(scratch_, &(*float_levels)[1]);
+  }
+  for (size_t l = 2; l < float_levels->size(); ++l)
+    cv::pyrDown((*float_levels)[l - 1], (*float_levels)[l]);
+  (*float_levels)[1].convertTo(*half, CV_8U);
+  return true;
+}
+
+// Corners for windows on `level`, found on the level above (a quarter of the
+// pixels; the whole image at full resolution costs ~20 ms) and returned in
+// full-image pixels, on whole pixels of `level`.
+std::vector<cv::Point2f> TextureTracker::findCorners(int level, const cv::Rect& feature_region,
+                                                     const std::vector<cv::Point2f>& dots) const
+{
+  const int search = std::min(level + 1, static_cast<int>(reference_levels_.size()) - 1);
+  const double to_search = 1.0 / static_cast<double>(1 << search);
+  const cv::Mat& image = reference_levels_[static_cast<size_t>(search)];
+  const cv::Rect region =
+      cv::Rect(cvCeil((feature_region.x - roi_.x) * to_search), cvCeil((feature_region.y - roi_.y) * to_search),
+               cvFloor(feature_region.width * to_search), cvFloor(feature_region.height * to_search)) &
+      cv::Rect(0, 0, image.cols, image.rows);
+  std::vector<cv::Point2f> corners, out;
+  if (region.area() <= 0)
+    return out;
+  // Mask out the dots so that no corner is a dot's edge.
+  cv::Mat mask(region.size(), CV_8UC1, cv::Scalar(255));
+  const int radius = cvCeil(config_.dot_clearance_px * to_search) + 1;
+  for (const cv::Point2f& d : dots)
+    cv::circle(
+        mask, cv::Point(cvRound((d.x - roi_.x) * to_search) - region.x, cvRound((d.y - roi_.y) * to_search) - region.y),
+        radius, cv::Scalar(0), cv::FILLED);
+  const double min_distance = std::max(1.0, config_.min_distance_px * to_search);
+  cv::goodFeaturesToTrack(image(region), corners, config_.max_features, config_.quality, min_distance, mask, 3);
+  const float scale = static_cast<float>(1 << search);
+  for (const cv::Point2f& c : corners)
+    out.emplace_back((c.x + region.x) * scale + roi_.x, (c.y + region.y) * scale + roi_.y);
+  return out;
+}
+
+// Every corner of every level whose window carries texture clearly above
+// the noise, with the 1-sigma its shift would have.
+std::vector<TextureTracker::Candidate> TextureTracker::candidates(const std::vector<cv::Point2f>& dots,
+                                                                  const cv::Rect& feature_region) const
+{
+  std::vector<Candidate> pool;
+  const int top = config_.photometric_refinement ? config_.max_level : 0;
+  Template t;
+  for (int level = std::min(config_.min_level, top); level <= top; ++level)
+    for (const cv::Point2f& p : findCorners(level, feature_region, dots))
+    {
+      if (nearDot(p, dots) || !buildTemplate(p, level, dots, &t))
+        continue;
+      const Information info = information(t, level);
+      if (info.signal_min >= config_.min_snr * info.noise_energy && info.sigma_px <= config_.max_sigma_px)
+        pool.push_back({p, level, info.sigma_px});
+    }
+  return pool;
+}
+
+// The candidates that carry the most information per area of rock first
+// (a window of level L spans 4^L times the area of a level-0 one, and keeps
+// others away from it: four fine windows of 1-sigma s are worth one coarse
+// window of s / 2), each at least min_distance_px and half the larger window
+// from those already chosen (overlapping windows share their errors).
+void TextureTracker::choose(std::vector<Candidate> pool)
+{
+  std::stable_sort(pool.begin(), pool.end(),
+                   [](const Candidate& a, const Candidate& b)
+                   { return a.sigma_px * (1 << a.level) < b.sigma_px * (1 << b.level); });
+  const double window = config_.photometric_refinement ? config_.refinement_window_px : config_.window_px;
+  for (const Candidate& c : pool)
+  {
+    if (static_cast<int>(features_.size()) >= config_.max_features)
+      break;
+    bool apart = true;
+    for (size_t k = 0; k < features_.size() && apart; ++k)
+    {
+      const double spacing = std::max(config_.min_distance_px, 0.5 * window * (1 << std::max(c.level, levels_[k])));
+      const cv::Point2f d = c.position - features_[k];
+      apart = d.x * d.x + d.y * d.y >= spacing * spacing;
+    }
+    if (!apart)
+      continue;
+    features_.push_back(c.position);
+    levels_.push_back(c.level);
+  }
 }
 
 int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Rect& region,
@@ -242,7 +281,7 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
     return 0;
   image_size_ = image.size();
   const cv::Rect full(0, 0, image.cols, image.rows);
-  const int half = windowHalf();
+  const int half = windowHalf(0);
   // Features need a whole window inside the image.
   const cv::Rect inner(half, half, std::max(0, image.cols - 2 * half), std::max(0, image.rows - 2 * half));
   const cv::Rect feature_region = region & inner;
@@ -252,58 +291,75 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
   roi_ = cv::Rect(feature_region.x - m, feature_region.y - m, feature_region.width + 2 * m,
                   feature_region.height + 2 * m) &
          full;
-
-  // Mask out the dots so that no corner is a dot's edge.
-  cv::Mat mask(feature_region.size(), CV_8UC1, cv::Scalar(255));
-  for (const cv::Point2f& d : dots)
-    cv::circle(mask, cv::Point(cvRound(d.x - feature_region.x), cvRound(d.y - feature_region.y)),
-               static_cast<int>(std::ceil(config_.dot_clearance_px)), cv::Scalar(0), cv::FILLED);
   const cv::Mat roi_image = prepare(image, channel, roi_);
   if (roi_image.empty())
   {
     clear();
     return 0;
   }
-  const cv::Rect in_roi(feature_region.x - roi_.x, feature_region.y - roi_.y, feature_region.width,
-                        feature_region.height);
-  for (const cv::Point2f& c : findCorners(roi_image(in_roi), mask))
-  {
-    const cv::Point2f p(c.x + feature_region.x, c.y + feature_region.y);
-    if (!nearDot(p, dots))
-      features_.push_back(p);
-  }
-  if (features_.empty())
-  {
-    clear();
-    return 0;
-  }
+  estimateNoise(roi_image);
   const cv::Size win(config_.window_px, config_.window_px);
-  // With the refinement to follow, pyramidal tracking only has to land
-  // within a pixel: it runs at half resolution, a quarter of the cost.
   if (config_.photometric_refinement)
   {
+    // Levels up to max_level + 1: the last one only to find corners for the one below.
     cv::Mat half;
-    cv::pyrDown(roi_image, half);
+    // Level 0 too at the lock: corners for level-0 windows are found on level 1 of it.
+    if (!buildLevels(image, channel, 0, config_.max_level + 2, &reference_levels_, &half))
+    {
+      clear();
+      return 0;
+    }
     cv::buildOpticalFlowPyramid(half, reference_pyramid_, win, std::max(config_.pyramid_levels - 1, 0), true);
   }
   else
+  {
+    cv::Mat half;
+    if (!buildLevels(image, channel, 0, 2, &reference_levels_, &half))
+    {
+      clear();
+      return 0;
+    }
     cv::buildOpticalFlowPyramid(roi_image, reference_pyramid_, win, config_.pyramid_levels, true);
-  buildTemplates(roi_image, dots);
+  }
+  if (config_.photometric_refinement)
+    choose(candidates(dots, feature_region));
+  else
+    for (const cv::Point2f& p : findCorners(0, feature_region, dots))
+      if (!nearDot(p, dots) && static_cast<int>(features_.size()) < config_.max_features)
+      {
+        features_.push_back(p);
+        levels_.push_back(0);
+      }
+  templates_.assign(features_.size(), Template());
+  first_level_ = config_.max_level;
+  for (size_t i = 0; i < features_.size() && config_.photometric_refinement; ++i)
+  {
+    buildTemplate(features_[i], levels_[i], dots, &templates_[i]);
+    used_levels_ = std::max(used_levels_, levels_[i] + 1);
+    first_level_ = std::min(first_level_, levels_[i]);
+  }
+  // Warped templates are sampled from the levels in use.
+  reference_levels_.resize(static_cast<size_t>(std::max(used_levels_, 1)));
+  if (features_.empty())
+    clear();
   return static_cast<int>(features_.size());
 }
 
 void TextureTracker::retain(const std::vector<uint8_t>& keep)
 {
   std::vector<cv::Point2f> kept;
+  std::vector<int> kept_levels;
   std::vector<Template> kept_templates;
   for (size_t i = 0; i < features_.size() && i < keep.size(); ++i)
     if (keep[i])
     {
       kept.push_back(features_[i]);
+      kept_levels.push_back(levels_[i]);
       if (i < templates_.size())
         kept_templates.push_back(std::move(templates_[i]));
     }
   features_.swap(kept);
+  levels_.swap(kept_levels);
   templates_.swap(kept_templates);
   if (features_.empty())
     clear();
@@ -311,20 +367,27 @@ void TextureTracker::retain(const std::vector<uint8_t>& keep)
 
 bool TextureTracker::setFrame(const cv::Mat& image, int channel)
 {
-  frame_.release();
-  frame_float_.release();
+  // The buffers are kept from frame to frame (no allocation once running).
   frame_pyramid_.clear();
+  frame_ok_ = false;
   if (features_.empty() || image.empty() || image.size() != image_size_)
     return false;
-  frame_ = prepare(image, channel, roi_);
-  if (!frame_.empty() && config_.photometric_refinement)
-    frame_.convertTo(frame_float_, CV_32F);  // the refinement's sums vectorise on floats
-  return !frame_.empty();
+  // The refinement's sums vectorise on floats; frame_ is the Lucas-Kanade
+  // base (half resolution with the refinement).
+  if (config_.photometric_refinement)
+    frame_ok_ = buildLevels(image, channel, first_level_, used_levels_, &frame_levels_, &frame_);
+  else
+  {
+    frame_ = prepare(image, channel, roi_);
+    frame_ok_ = !frame_.empty();
+  }
+  return frame_ok_;
 }
 
-bool TextureTracker::accept(const cv::Point2f& p, const std::vector<cv::Point2f>& dots, cv::Point2f* full) const
+bool TextureTracker::accept(const cv::Point2f& p, int level, const std::vector<cv::Point2f>& dots,
+                            cv::Point2f* full) const
 {
-  const float half = static_cast<float>(windowHalf());
+  const float half = static_cast<float>(windowHalf(level));
   if (!(p.x >= half && p.y >= half && p.x <= roi_.width - 1 - half && p.y <= roi_.height - 1 - half))
     return false;
   *full = cv::Point2f(p.x + roi_.x, p.y + roi_.y);
@@ -338,12 +401,12 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
   const size_t n = features_.size();
   tracked->assign(n, cv::Point2f(NAN, NAN));
   ok->assign(n, 0);
-  if (frame_.empty() || predicted.size() != n || (!which.empty() && which.size() != n))
+  if (!frame_ok_ || predicted.size() != n || (!which.empty() && which.size() != n))
     return 0;
   const cv::Point2f offset(static_cast<float>(roi_.x), static_cast<float>(roi_.y));
-  // Pixel centres at integers: x_half = (x + 0.5) / 2 - 0.5.
+  // cv::pyrDown centres pixel x of the half image on pixel 2x.
   const bool half = config_.photometric_refinement;
-  const float scale = half ? 0.5f : 1.0f, shift = half ? -0.25f : 0.0f;
+  const float scale = half ? 0.5f : 1.0f;
   std::vector<size_t> index;
   std::vector<cv::Point2f> prev, next;
   for (size_t i = 0; i < n; ++i)
@@ -353,8 +416,8 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
     index.push_back(i);
     const cv::Point2f& p = predicted[i];
     const cv::Point2f from = features_[i] - offset, to = std::isfinite(p.x) && std::isfinite(p.y) ? p - offset : from;
-    prev.emplace_back(from.x * scale + shift, from.y * scale + shift);
-    next.emplace_back(to.x * scale + shift, to.y * scale + shift);
+    prev.emplace_back(from.x * scale, from.y * scale);
+    next.emplace_back(to.x * scale, to.y * scale);
   }
   if (index.empty())
     return 0;
@@ -362,14 +425,7 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
   const int levels = half ? std::max(config_.pyramid_levels - 1, 0) : config_.pyramid_levels;
   if (frame_pyramid_.empty())
   {
-    if (half)
-    {
-      cv::Mat down;
-      cv::pyrDown(frame_, down);
-      cv::buildOpticalFlowPyramid(down, frame_pyramid_, win, levels, false);
-    }
-    else
-      cv::buildOpticalFlowPyramid(frame_, frame_pyramid_, win, levels, false);
+    cv::buildOpticalFlowPyramid(frame_, frame_pyramid_, win, levels, false);
   }
   std::vector<uchar> status;
   std::vector<float> err;
@@ -380,50 +436,11 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
   for (size_t k = 0; k < index.size(); ++k)
   {
     cv::Point2f full;
-    const cv::Point2f at((next[k].x - shift) / scale, (next[k].y - shift) / scale);
-    if (!status[k] || !(err[k] <= config_.max_error) || !accept(at, dots, &full))
+    const cv::Point2f at(next[k].x / scale, next[k].y / scale);
+    if (!status[k] || !(err[k] <= config_.max_error) || !accept(at, 0, dots, &full))
       continue;
     (*tracked)[index[k]] = full;
     (*ok)[index[k]] = 1;
-    ++good;
-  }
-  return good;
-}
-
-int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const std::vector<cv::Point2f>& dots,
-                              std::vector<cv::Point2f>* tracked, std::vector<uint8_t>* ok) const
-{
-  const size_t n = features_.size();
-  tracked->assign(n, cv::Point2f(NAN, NAN));
-  ok->assign(n, 0);
-  if (frame_.empty() || predicted.size() != n || templates_.size() != n)
-    return 0;
-  const cv::Point2f offset(static_cast<float>(roi_.x), static_cast<float>(roi_.y));
-  std::vector<float> local_mask;
-  int good = 0;
-  for (size_t i = 0; i < n; ++i)
-  {
-    cv::Point2f p = predicted[i] - offset, full;
-    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !accept(p, dots, &full))
-      continue;  // a feature centred on a dot has lost its own texture
-    const Template& t = templates_[i];
-    if (!t.ok)
-      continue;
-    // This frame's dots in the window get no weight either.
-    local_mask = t.mask;
-    const bool masked = maskDots(dots, predicted[i], &local_mask);
-    cv::Matx44d inverse_normal = t.inverse_normal;
-    if (masked)
-    {
-      bool invertible = false;
-      inverse_normal = normalOf(t, local_mask).inv(cv::DECOMP_CHOLESKY, &invertible);
-      if (!invertible)
-        continue;
-    }
-    if (!refine(i, frame_float_, masked ? local_mask : t.mask, inverse_normal, &p) || !accept(p, dots, &full))
-      continue;
-    (*tracked)[i] = full;
-    (*ok)[i] = 1;
     ++good;
   }
   return good;

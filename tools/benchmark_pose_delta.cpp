@@ -2,7 +2,7 @@
 // 1024 x 1024 bgr8 image per frame (texture tracking included), simulator
 // frames rendered beforehand so that only the estimator is timed.
 //
-// Usage: benchmark_pose_delta [frames (default 40)]
+// Usage: benchmark_pose_delta [frames (default 40)] [case (0-3, default all)]
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
@@ -34,8 +34,12 @@ int main(int argc, char** argv)
                         {"flat board, texture on        ", 0.0, true, PoseDeltaMode::kReference},
                         // Every valid frame becomes the reference (features chosen anew).
                         {"rough rock, frame_to_frame    ", 0.15, true, PoseDeltaMode::kFrameToFrame}};
-  for (const Case& c : cases)
+  const int only = argc > 2 ? std::atoi(argv[2]) : -1;
+  for (int ci = 0; ci < 4; ++ci)
   {
+    const Case& c = cases[ci];
+    if (only >= 0 && ci != only)
+      continue;
     SimulatorParams sc;
     sc.rock.relief_m = c.relief_m;
     sc.motion.jitter_translation_m = 0.010;
@@ -60,11 +64,10 @@ int main(int argc, char** argv)
 
     auto t0 = std::chrono::steady_clock::now();
     est.process(inputs[0]);
-    const double lock_ms =
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    const double lock_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 
     std::vector<double> ms;
-    int valid = 0, features = 0;
+    int valid = 0, features = 0, iterations = 0;
     const std::clock_t c0 = std::clock();
     for (int k = 1; k <= frames; ++k)
     {
@@ -73,6 +76,7 @@ int main(int argc, char** argv)
       ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
       valid += r.valid ? 1 : 0;
       features += r.features_used;
+      iterations += r.iterations;
     }
     const double cpu_ms = 1000.0 * (std::clock() - c0) / CLOCKS_PER_SEC / frames;
     std::sort(ms.begin(), ms.end());
@@ -81,7 +85,8 @@ int main(int argc, char** argv)
       sum += v;
     std::cout << c.name << ": " << sum / frames << " ms/frame mean, " << ms[ms.size() / 2] << " median, "
               << ms[ms.size() * 95 / 100] << " p95 (wall), " << cpu_ms << " ms CPU; lock " << lock_ms << " ms; "
-              << valid << "/" << frames << " valid, " << features / frames << " texture features/frame\n";
+              << valid << "/" << frames << " valid, " << features / frames << " texture features/frame, "
+              << static_cast<double>(iterations) / frames << " iterations/frame\n";
   }
   return 0;
 }

@@ -57,6 +57,17 @@ struct PoseDeltaParams
   // Lucas-Kanade): natural vignetting alone changes a point's brightness by
   // several per cent as it moves, which plain Lucas-Kanade reads as a shift.
   int texture_refinement_window_px = 23;
+  // Pyramid levels of the refinement windows (texture_tracker.h): a weak,
+  // low-frequency texture (features of 10 cm and more) carries its
+  // information on a coarse level, where a window spans more rock; the
+  // finest is half resolution (0 = full resolution too).
+  int texture_min_level = 1;
+  int texture_max_level = 2;
+  // A window is a feature only when its texture's gradient energy exceeds
+  // the image noise's this many times (a flat, textureless board has none),
+  // and when its predicted shift 1-sigma is at most texture_max_sigma_px.
+  double texture_min_snr = 1.0;
+  double texture_max_sigma_px = 0.5;
   // Features from the whole image (not only the box of the dots): their
   // perspective flow separates in-plane translation from tilt, which the
   // narrow box cannot. Outside the dot map a feature's depth is extrapolated
@@ -72,6 +83,13 @@ struct PoseDeltaParams
   // same surface), so n features are worth less than n independent ones. On
   // the simulator the in-plane errors are 2-2.5 times the independent sigma.
   double texture_error_inflation = 2.5;
+
+  // Optional constant-velocity filter over the estimates (pose_filter.h):
+  // the result's transform and covariance are then the filter's, the raw
+  // estimate stays in PoseDeltaResult::raw_*. Needs PoseDeltaInput::stamp_s.
+  bool filter = false;
+  double filter_acceleration_noise = 0.1;           // m/s^2/sqrt(Hz), per axis (pose_filter.h)
+  double filter_angular_acceleration_noise = 0.15;  // rad/s^2/sqrt(Hz), per axis
 
   // Empty when usable, otherwise why not.
   std::string validate() const;

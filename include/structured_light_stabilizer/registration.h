@@ -8,9 +8,10 @@
 //  - geometry: the point-to-plane distance (metres) of each `current` point
 //    to `reference_surface` and, when `current_surface` is given, of each
 //    `reference` point to it; Huber weights on the robust (MAD) scale;
-//  - texture: the reprojection error (pixels, scaled by `focal_px`) of
-//    reference texture points observed in the current image; Huber, then
-//    Tukey's biweight once the pose settles.
+//  - texture: the reprojection error (pixels, scaled by focal_px) of
+//    reference texture points observed in the current image, whitened by
+//    each feature's measured covariance (when it has one); Huber, then
+//    Tukey's biweight once the pose settles, on the robust scale.
 // A weak prior towards `initial` keeps unobservable directions put, and a
 // direction whose 1-sigma exceeds freeze_factor times the validity bounds is
 // not updated at all (it stays at `initial`). Points that are NaN or behind
@@ -40,6 +41,20 @@ struct TextureConstraint
   Eigen::Vector3d point_ref;
   Eigen::Vector2d observed_normalized;
   double depth_sigma_m = 0.0;
+  // Measured covariance of the observation (pixels^2, scaled by focal_px);
+  // zero = unknown (the robust scale of all features alone weights it).
+  Eigen::Matrix2d covariance_px = Eigen::Matrix2d::Zero();
+};
+
+// A frame's texture constraints. The image they come from was exposed at the
+// pose offset * T (T the pose of the points): the ambient frame of a strobed
+// pair is exposed before or after the frame with the dots, and the rig moves
+// in between (offset = identity for the same exposure).
+struct TextureObservations
+{
+  std::vector<TextureConstraint> constraints;
+  double focal_px = 1.0;  // pixels per unit of normalised coordinate
+  Eigen::Isometry3d offset = Eigen::Isometry3d::Identity();
 };
 
 struct RegistrationOutput
@@ -59,8 +74,7 @@ struct RegistrationOutput
 // sigmas, the validity sigmas with freeze_factor, and texture_error_inflation.
 RegistrationOutput registerToSurface(const BeamSurface& reference_surface,
                                      const std::vector<Eigen::Vector3d>& reference, const BeamSurface* current_surface,
-                                     const std::vector<Eigen::Vector3d>& current,
-                                     const std::vector<TextureConstraint>& texture, double focal_px,
+                                     const std::vector<Eigen::Vector3d>& current, const TextureObservations& texture,
                                      const Eigen::Isometry3d& initial, const PoseDeltaParams& config);
 
 }  // namespace structured_light_stabilizer

@@ -2,10 +2,11 @@
 // texture half of PoseDeltaEstimator (docs/pose_delta.md).
 //
 // Contract: when the reference is locked, features are chosen in its image
-// away from the dots (texture_tracker.h) and lifted to 3D in the reference
-// camera frame (metres): onto the reference surface where a feature's ray
-// meets it, otherwise onto the least-squares plane of the reference points
-// with a loose depth prior that the registration refines. In each frame the
+// away from the dots (texture_tracker.h; anywhere in an ambient frame without
+// dots) and lifted to 3D in the reference camera frame (metres): onto the
+// reference surface where a feature's ray meets it, otherwise onto the
+// least-squares plane of the reference points with a loose depth prior that
+// the registration refines. In each frame the
 // features are predicted from a pose (p_cur = T * p_ref), tracked, and
 // returned as TextureConstraints (undistorted normalised coordinates).
 // Not thread-safe (one estimator's state); throws nothing.
@@ -30,6 +31,15 @@ namespace structured_light_stabilizer
 // camera skipped): where the dots are in the image.
 std::vector<cv::Point2f> projectPoints(const CameraModel& camera, const std::vector<Eigen::Vector3d>& points);
 
+// How an image relates to the beam map it comes with.
+struct TextureExposure
+{
+  // p_image = offset * p_points: the ambient (projector-off) frame of a
+  // strobed pair is exposed at another instant than the frame with the dots.
+  Eigen::Isometry3d offset = Eigen::Isometry3d::Identity();
+  bool dots_in_image = true;  // false for an ambient frame: no dot to mask
+};
+
 class TextureLandmarks
 {
 public:
@@ -38,7 +48,8 @@ public:
   // built on it; `camera` must match the image. Nothing to track when the
   // map has no dot in the image.
   void lock(const PoseDeltaParams& config, const CameraModel& camera, const cv::Mat& image, int channel,
-            const std::vector<Eigen::Vector3d>& points, const BeamSurface& surface);
+            const std::vector<Eigen::Vector3d>& points, const BeamSurface& surface,
+            const TextureExposure& exposure = TextureExposure());
   // No reference image any more.
   void clear();
   // Forgets the features (they were lifted with other intrinsics); the
@@ -48,10 +59,11 @@ public:
   bool hasReferenceImage() const { return has_image_; }
   bool empty() const { return tracker_.empty(); }
 
-  // Starts a frame: its image and beam map (the dots' windows are masked).
-  // False when the image cannot be tracked (see TextureTracker::setFrame).
+  // Starts a frame: its image and beam map (the dots' windows are masked
+  // when the dots are in the image). False when the image cannot be tracked
+  // (see TextureTracker::setFrame).
   bool setFrame(const CameraModel& camera, const cv::Mat& image, int channel,
-                const std::vector<Eigen::Vector3d>& points);
+                const std::vector<Eigen::Vector3d>& points, bool dots_in_image = true);
   // Features predicted at T and tracked over the pyramid (a wide capture
   // range): about kCoarseFeatures of them spread over the list, or all.
   std::vector<TextureConstraint> trackCoarse(const Eigen::Isometry3d& T);
@@ -60,19 +72,52 @@ public:
   // (needs a prediction within about a pixel): the measurement.
   std::vector<TextureConstraint> refineAll(const Eigen::Isometry3d& T) const;
 
+  // Two exposures bracketing the instant of the beam map (the ambient frames
+  // before and after a strobed frame with dots; no dot in either): each
+  // feature refined in both, from where T_first and T_second predict it,
+  // and taken at `fraction` of the way from the first position to the
+  // second (the instant's share of the gap). No velocity is needed: over a
+  // 60 Hz field the rig's velocity barely changes, and the second exposure
+  // is predicted from the first by a few features tracked over the pyramid.
+  // Replaces setFrame().
+  std::vector<TextureConstraint> refineBetween(const Eigen::Isometry3d& T_first, const Eigen::Isometry3d& T_second,
+                                               const cv::Mat& first, const cv::Mat& second, int channel,
+                                               double fraction);
+  // After lock() on the first of two such exposures: each feature is lifted
+  // again where it was at `fraction` of the way to the second (features
+  // lost in the second are dropped). `points` and `surface` are the lock's.
+  void centreBetween(const cv::Mat& second, int channel, double fraction, const CameraModel& camera,
+                     const std::vector<Eigen::Vector3d>& points, const BeamSurface& surface,
+                     const PoseDeltaParams& config);
+
 private:
   // How many features trackCoarse() tracks: enough to fix the in-plane axes
   // for a prediction, at a fraction of the cost of all.
   static constexpr size_t kCoarseFeatures = 48;
 
-  std::vector<cv::Point2f> predict(const Eigen::Isometry3d& T) const;
-  std::vector<TextureConstraint> constraints(const std::vector<cv::Point2f>& tracked,
-                                             const std::vector<uint8_t>& ok) const;
+  // Pixels of the features at T and, with `warps`, the local linear map of
+  // each feature's window (its patch of rock taken as the plane through its
+  // point with its normal).
+  std::vector<cv::Point2f> predict(const Eigen::Isometry3d& T, std::vector<cv::Matx22d>* warps = nullptr) const;
+  // Every feature refined from where T predicts it, per feature.
+  struct Refined
+  {
+    std::vector<cv::Point2f> tracked;
+    std::vector<uint8_t> ok;
+    std::vector<cv::Matx22d> covariance;
+  };
+  Refined refine(const Eigen::Isometry3d& T) const;
+  Refined refineFrom(const Refined& first, const Eigen::Isometry3d& T);
+  // The tracked features as constraints; with `covariance` (px^2, per
+  // feature) each carries its measured covariance.
+  std::vector<TextureConstraint> constraints(const std::vector<cv::Point2f>& tracked, const std::vector<uint8_t>& ok,
+                                             const std::vector<cv::Matx22d>* covariance = nullptr) const;
   std::vector<TextureConstraint> trackPyramidal(const Eigen::Isometry3d& T, const std::vector<uint8_t>& which);
 
   TextureTracker tracker_;
-  std::vector<Eigen::Vector3d> points_;  // the features lifted to 3D, reference camera frame
-  std::vector<double> depth_sigma_;      // 1-sigma of each feature's depth (0 = fixed)
+  std::vector<Eigen::Vector3d> points_;   // the features lifted to 3D, reference camera frame
+  std::vector<Eigen::Vector3d> normals_;  // of the rock at each feature (reference surface or plane)
+  std::vector<double> depth_sigma_;       // 1-sigma of each feature's depth (0 = fixed)
   bool has_image_ = false;
   // The frame being tracked.
   CameraModel camera_;

@@ -38,6 +38,7 @@
 #include "structured_light_stabilizer/PoseDelta.h"
 #include "structured_light_stabilizer/PoseDeltaConfig.h"
 #include "structured_light_stabilizer/pose_delta.h"
+#include "ambient_pairing.h"
 #include "cloud_image_matcher.h"
 #include "conversions.h"
 #include "nodelet_base.h"
@@ -84,6 +85,14 @@ PoseDeltaParams paramsFromConfig(const Config& config)
   p.texture_pyramid_levels = config.texture_pyramid_levels;
   p.texture_dot_clearance_px = config.texture_dot_clearance_px;
   p.texture_roi_margin_px = config.texture_roi_margin_px;
+  p.texture_min_level = config.texture_min_level;
+  p.texture_max_level = config.texture_max_level;
+  p.texture_min_snr = config.texture_min_snr;
+  p.texture_max_sigma_px = config.texture_max_sigma_px;
+  // Filter.
+  p.filter = config.filter;
+  p.filter_acceleration_noise = config.filter_acceleration_noise;
+  p.filter_angular_acceleration_noise = config.filter_angular_acceleration_noise;
   return p;
 }
 
@@ -124,6 +133,8 @@ private:
     // The tf has no subscriber count: while it is wanted the inputs must be.
     lazy_ = lazy_ && !publish_tf_;
     pnh.param("auto_lock", auto_lock_, true);
+    // Strobed operation: the texture from camera/image_ambient (ambient_pairing.h).
+    pnh.param("strobe", strobe_, false);
     pnh.param("camera_frame", camera_frame_param_, std::string());
     pnh.param("image_queue_size", image_queue_size_, 5);
     image_queue_size_ = std::max(1, image_queue_size_);
@@ -197,6 +208,8 @@ private:
       image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
       sub_image_ = it_->subscribe("camera/image_raw", 5, &PoseDeltaNodelet::imageCb, this, hints);
       sub_info_ = getNodeHandle().subscribe("camera/camera_info", 5, &PoseDeltaNodelet::infoCb, this);
+      if (strobe_)
+        sub_ambient_ = it_->subscribe("camera/image_ambient", 5, &PoseDeltaNodelet::ambientCb, this, hints);
       images_subscribed_ = true;
     }
     else if (!want_images && sub_image_)
@@ -204,8 +217,10 @@ private:
       images_subscribed_ = false;
       sub_image_.shutdown();
       sub_info_.shutdown();
+      sub_ambient_.shutdown();
       std::lock_guard<std::mutex> lock(buffer_mutex_);
       matcher_.clearImages();
+      ambient_pairing_.clear();
     }
   }
 
@@ -265,6 +280,12 @@ private:
                    config.texture_refinement_window_px);
       config.texture_refinement_window_px = 5;
     }
+    if (config.texture_min_level > config.texture_max_level)
+    {
+      NODELET_WARN("PoseDelta: texture_min_level %d > texture_max_level %d; using %d", config.texture_min_level,
+                   config.texture_max_level, config.texture_max_level);
+      config.texture_min_level = config.texture_max_level;
+    }
     if (config.texture_min_features > config.texture_max_features)
     {
       NODELET_WARN("PoseDelta: texture_min_features %d > texture_max_features %d; using %d",
@@ -315,13 +336,24 @@ private:
     matcher_.addCloud(cloud, texture && images_subscribed_, handle_frame_);
   }
 
-  // Called with buffer_mutex_ held: one frame at a time, in order.
-  void handleFrame(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
+  void ambientCb(const sensor_msgs::ImageConstPtr& ambient)
   {
-    guarded([&] { process(cloud, image); });
+    std::lock_guard<std::mutex> lock(buffer_mutex_);
+    ambient_pairing_.addAmbient(ambient, release_strobed_);
   }
 
-  void process(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
+  // Called with buffer_mutex_ held: one frame at a time, in order. Strobed,
+  // a frame waits for the ambient frame after it.
+  void handleFrame(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
+  {
+    if (strobe_ && images_subscribed_)
+      ambient_pairing_.addFrame(cloud, image, release_strobed_);
+    else
+      guarded([&] { process(cloud, image, nullptr, nullptr); });
+  }
+
+  void process(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image,
+               const sensor_msgs::ImageConstPtr& ambient_before, const sensor_msgs::ImageConstPtr& ambient_after)
   {
     const ros::WallTime start = ros::WallTime::now();
     PoseDeltaPtr msg(new PoseDelta);
@@ -348,8 +380,11 @@ private:
     }
     map_received_ = map_received_ || std::any_of(input.points.begin(), input.points.end(),
                                                  [](const Eigen::Vector3d& p) { return p.allFinite(); });
+    input.stamp_s = cloud->header.stamp.toSec();
     if (image && estimator_.params().use_texture)
       prepareImage(image, &input);
+    if (estimator_.params().use_texture)
+      prepareAmbient(ambient_before, ambient_after, &input);
     const PoseDeltaResult r = estimator_.process(input);
     if (r.locked_now)
       NODELET_INFO("PoseDelta: reference locked at %.3f (%d points)", cloud->header.stamp.toSec(), r.points_used);
@@ -407,6 +442,28 @@ private:
     {
       NODELET_ERROR_THROTTLE(5.0, "PoseDelta: image not usable for the texture (%s)", ex.what());
       input->image = cv::Mat();
+    }
+  }
+
+  // The ambient frames around a strobed frame, as the texture images (the
+  // same conversion as the frame's own image).
+  void prepareAmbient(const sensor_msgs::ImageConstPtr& before, const sensor_msgs::ImageConstPtr& after,
+                      PoseDeltaInput* input)
+  {
+    const sensor_msgs::ImageConstPtr first = before ? before : after;
+    const sensor_msgs::ImageConstPtr second = before ? after : nullptr;
+    PoseDeltaInput ambient;
+    if (first)
+    {
+      prepareImage(first, &ambient);
+      input->ambient_image = ambient.image;
+      input->ambient_stamp_s = first->header.stamp.toSec();
+    }
+    if (second)
+    {
+      prepareImage(second, &ambient);
+      input->ambient_after_image = ambient.image;
+      input->ambient_after_stamp_s = second->header.stamp.toSec();
     }
   }
 
@@ -475,6 +532,7 @@ private:
   // Parameters fixed at start-up.
   bool auto_lock_ = true;
   bool publish_tf_ = true;
+  bool strobe_ = false;
   std::string camera_frame_param_;
   int image_queue_size_ = 5;
 
@@ -495,6 +553,7 @@ private:
   ros::Subscriber sub_info_;
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber sub_image_;
+  image_transport::Subscriber sub_ambient_;
   std::atomic<bool> images_subscribed_{false};
   std::atomic<bool> points_subscribed_{false};
   ros::ServiceServer srv_lock_;
@@ -507,6 +566,11 @@ private:
       [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
   { handleFrame(cloud, image); };
   sensor_msgs::CameraInfoConstPtr latest_info_;
+  AmbientPairing ambient_pairing_;
+  const AmbientPairing::Release release_strobed_ =
+      [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image,
+             const sensor_msgs::ImageConstPtr& before, const sensor_msgs::ImageConstPtr& after)
+  { guarded([&] { process(cloud, image, before, after); }); };
   PoseDeltaEstimator estimator_;
   bool map_received_ = false;
   ros::Time last_tf_stamp_;

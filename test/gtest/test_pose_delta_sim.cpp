@@ -1,6 +1,11 @@
-// PoseDelta on the simulator (the issue's accuracy cases): SimFrame::points
-// (the true beam hit points, plus 0.5 mm of noise along the camera ray to
-// mimic triangulation) and SimFrame::image, compared with SimFrame::delta.
+// PoseDelta on the simulator with the true beam hit points (SimFrame::points,
+// plus 0.5 mm of noise along the camera ray to mimic triangulation) and
+// SimFrame::image, compared with SimFrame::delta: the estimator alone, apart
+// from the detector and the triangulator (test_pose_delta_chain runs the full
+// chain on held-out seeds). Rock seed 1 was among the seeds the texture was
+// developed on; seed 5 was not. Bounds: the accuracy target of issue #15
+// (0.5 mm, 0.02 deg RMS, 95 % valid) and its return to the reference pose
+// (0.05 mm, 0.002 deg).
 #include <cmath>
 #include <iostream>
 #include <random>
@@ -105,8 +110,8 @@ Outcome run(const Scenario& s, double dt = 0.1)
   o.valid_percent = 100.0 * valid / s.frames;
   for (int a = 0; a < 6; ++a)
     o.axis_rms[a] = std::sqrt(o.axis_rms[a] / s.frames);
-  std::cout << "[ MEASURE ] sim " << s.name << ": translation RMS " << o.rms_t_mm << " mm, rotation RMS "
-            << o.rms_r_deg << " deg, valid " << o.valid_percent << " % of " << o.frames
+  std::cout << "[ MEASURE ] sim " << s.name << ": translation RMS " << o.rms_t_mm << " mm, rotation RMS " << o.rms_r_deg
+            << " deg, valid " << o.valid_percent << " % of " << o.frames
             << " frames; per axis tx ty tz (mm) rx ry rz (deg): " << o.axis_rms.transpose() << "\n"
             << "  last status: " << o.last_status << "\n";
   return o;
@@ -116,27 +121,27 @@ Outcome run(const Scenario& s, double dt = 0.1)
 TEST(PoseDeltaSim, RoughRockJitter)
 {
   const Outcome o = run({"rough rock 0.15 m, jitter 10 mm / 1 deg, texture on", 0.15, true, 0.5e-3, 30});
-  EXPECT_LT(o.rms_t_mm, 1.0);
-  EXPECT_LT(o.rms_r_deg, 0.05);
+  EXPECT_LT(o.rms_t_mm, 0.5);
+  EXPECT_LT(o.rms_r_deg, 0.02);
   EXPECT_GE(o.valid_percent, 95.0);
   // The exact beam hit points, as the rostest feeds sim/ground_truth/points.
   const Outcome exact = run({"rough rock 0.15 m, exact points, texture on", 0.15, true, 0.0, 20});
-  EXPECT_LT(exact.rms_t_mm, 1.0);
-  EXPECT_LT(exact.rms_r_deg, 0.05);
+  EXPECT_LT(exact.rms_t_mm, 0.5);
+  EXPECT_LT(exact.rms_r_deg, 0.02);
   EXPECT_GE(exact.valid_percent, 95.0);
   // Another rock, locked while the rig is moving (as the rostest does).
   const Outcome other =
       run({"another rough rock, locked in motion, texture on", 0.15, true, 0.5e-3, 20, /*rock_seed=*/5, 1.48});
-  EXPECT_LT(other.rms_t_mm, 1.0);
-  EXPECT_LT(other.rms_r_deg, 0.05);
+  EXPECT_LT(other.rms_t_mm, 0.5);
+  EXPECT_LT(other.rms_r_deg, 0.02);
   EXPECT_GE(other.valid_percent, 95.0);
 }
 
 TEST(PoseDeltaSim, FlatTexturedBoardJitter)
 {
   const Outcome o = run({"flat board, jitter 10 mm / 1 deg, texture on", 0.0, true, 0.5e-3, 30});
-  EXPECT_LT(o.rms_t_mm, 1.0);
-  EXPECT_LT(o.rms_r_deg, 0.05);
+  EXPECT_LT(o.rms_t_mm, 0.5);
+  EXPECT_LT(o.rms_r_deg, 0.02);
   EXPECT_GE(o.valid_percent, 95.0);
 }
 
@@ -176,6 +181,6 @@ TEST(PoseDeltaSim, ReturnsToIdentity)
     worst_t = std::max(worst_t, t_mm);
     worst_r = std::max(worst_r, r_deg);
   }
-  EXPECT_LT(worst_t, 0.2);
-  EXPECT_LT(worst_r, 0.01);
+  EXPECT_LT(worst_t, 0.05);
+  EXPECT_LT(worst_r, 0.002);
 }
