@@ -18,6 +18,7 @@
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/PoseDelta.h"
 #include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "conversions.h"
 #include "frame_source.h"
@@ -104,12 +105,12 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
 
 // ---- dynamic_reconfigure <-> the simulator's live settings, one function each way.
 
-void liveSettingsFromConfig(const CameraDriverConfig& config, RadiometryModel model, SimulatorParams* c)
+// model_ratio: the dot/sun ratio of the chosen radiometry (the rig's when
+// one is loaded), used when the config's is negative.
+void liveSettingsFromConfig(const CameraDriverConfig& config, double model_ratio, SimulatorParams* c)
 {
   c->lighting.sun_level = config.sun_level;
-  // Negative: the ratio of the scene analysis for the chosen radiometry.
-  c->lighting.dot_to_sun_ratio =
-      config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingParams::sceneDotToSunRatio(model);
+  c->lighting.dot_to_sun_ratio = config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : model_ratio;
   c->lighting.exposure = config.exposure;
   c->projector.power_scale = config.power_scale;
   c->motion.jitter_translation_m = config.jitter_translation;
@@ -143,6 +144,7 @@ public:
   {
     SimulatorParams c;
     readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
+    strobe_ = ctx_.pnh.param("strobe", false);
     const std::string ratio_source = readLighting(&c);
     duration_s_ = ctx_.pnh.param("duration", 0.0);
     useUrlCalibration(&c);
@@ -157,6 +159,10 @@ public:
       ctx_.info(
           "~lazy: frames are rendered only while someone subscribes to the image or the ground truth "
           "(simulated time runs on regardless)");
+    if (strobe_)
+      ctx_.info(
+          "~strobe: every second frame has the projector off and goes to camera/image_ambient (its own stamp, "
+          "no ground truth); the projector-on frames go to camera/image_raw");
     writeProjectorCalibration();
     return true;
   }
@@ -186,10 +192,14 @@ public:
         pub_gt_pose_.getNumSubscribers() == 0 && pub_gt_spots_.getNumSubscribers() == 0)
       return {GrabStatus::kSkip, ""};
     rendered_by_ = simulator();
+    // Strobed: odd frames are the ambient ones (index_ counts this frame).
+    FrameRequest request;
+    request.projector_on = !(strobe_ && index_ % 2 == 0);
     const auto t0 = std::chrono::steady_clock::now();
-    rendered_ = rendered_by_->render(t);
+    rendered_ = rendered_by_->render(t, request);
     frame->processing_ms = millisecondsSince(t0);
     frame->image = rendered_.image;
+    frame->ambient = last_ambient_ = !request.projector_on;
     return {GrabStatus::kFrame, ""};
   }
 
@@ -198,6 +208,8 @@ public:
 
 private:
   std::string readLighting(SimulatorParams* c);
+  std::string applyRig(SimulatorParams* c);
+  double modelRatio(RadiometryModel model) const;
   void useUrlCalibration(SimulatorParams* c) const;
   bool build(const SimulatorParams& c, const std::string& ratio_source);
   void writeProjectorCalibration() const;
@@ -217,6 +229,12 @@ private:
   mutable std::mutex mutex_;
   std::shared_ptr<const Simulator> simulator_;  // under mutex_; replaced, never modified
   std::string radiometry_ = "study";            // reconfigure() only (dynamic_reconfigure's thread)
+  // Daylight (docs/daylight.md): ~strobe publishes every second frame with
+  // the projector off on camera/image_ambient; ~rig sets the corrected
+  // radiometry from a rig's YAML. Set in setUp(), read-only after.
+  bool strobe_ = false;
+  double rig_ratio_ = -1.0;  // the rig's dot/sun ratio; negative: no rig loaded
+  bool last_ambient_ = false;  // worker thread: the last frame grabbed was a projector-off frame
 
   // Worker thread: simulated time, the last frame and the simulator that rendered it.
   uint64_t index_ = 0, index_base_ = 0;
@@ -239,10 +257,56 @@ std::string SimSource::readLighting(SimulatorParams* c)
     model = RadiometryModel::kStudyAsStated;
     ctx_.pnh.setParam("radiometry", radiometry_);  // dynamic_reconfigure starts from it
   }
+  const std::string rig_note = model == RadiometryModel::kCorrected ? applyRig(c) : "";
   double ratio = -1.0;
   ParamReader(ctx_.pnh, ctx_.error).number("dot_to_sun_ratio", &ratio);
-  c->lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingParams::sceneDotToSunRatio(model);
-  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
+  c->lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : modelRatio(model);
+  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry" + rig_note;
+}
+
+double SimSource::modelRatio(RadiometryModel model) const
+{
+  if (model == RadiometryModel::kCorrected && rig_ratio_ >= 0.0)
+    return rig_ratio_;
+  return LightingParams::sceneDotToSunRatio(model);
+}
+
+// ~rig (corrected radiometry): the rig's exposure, gain, read noise, beam and
+// dot brightness (radiometry.h), pulsed for the frames ~strobe lights. An
+// explicit ~exposure or ~read_noise keeps its value. Returns the start-up
+// line's note; on a bad file says why and keeps the plain corrected ratio.
+std::string SimSource::applyRig(SimulatorParams* c)
+{
+  const std::string path = ctx_.pnh.param<std::string>("rig", "");
+  if (path.empty())
+    return "";
+  try
+  {
+    const SceneAnalysis analysis = analyseScene(SceneInputs());
+    RigParams rig = loadRig(analysis, path);
+    rig.strobe = strobe_;  // the projector fires on the frames this driver lights
+    const SimRadiometry r = simulatorRadiometry(analysis, rig);
+    const double exposure = c->lighting.exposure, read_noise = c->sensor.read_noise_dn;
+    applySimRadiometry(r, c);
+    // Explicit values win; the rig's are written back so that
+    // dynamic_reconfigure starts from them.
+    if (ctx_.pnh.hasParam("exposure"))
+      c->lighting.exposure = exposure;
+    else
+      ctx_.pnh.setParam("exposure", r.exposure);
+    if (ctx_.pnh.hasParam("read_noise"))
+      c->sensor.read_noise_dn = read_noise;
+    else
+      ctx_.pnh.setParam("read_noise", r.read_noise_dn);
+    rig_ratio_ = r.dot_to_sun_ratio;
+    return stringf(", rig '%s' (%s, %.2f ms, %.0f e-/DN)", rig.name.c_str(), path.c_str(), rig.exposure_s * 1e3,
+                   1.0 / r.gain_dn_per_electron);
+  }
+  catch (const std::exception& e)
+  {
+    ctx_.error(stringf("~rig: %s; using the corrected study LED without a rig", e.what()));
+    return "";
+  }
 }
 
 // A calibration file for the simulated camera replaces its intrinsics (and
@@ -304,6 +368,8 @@ void SimSource::writeProjectorCalibration() const
 
 void SimSource::published(const std_msgs::Header& header)
 {
+  if (last_ambient_)
+    return;  // the ground truth goes with the frames that show the dots
   const ProjectorCalibration& projector = rendered_by_->projector();
   const SimFrame& frame = rendered_;
   std::vector<float> intensity(frame.peak_dn.begin(), frame.peak_dn.end());
@@ -352,7 +418,7 @@ void SimSource::reconfigure(CameraDriverConfig& config)
   }
   radiometry_ = config.radiometry;
   SimulatorParams c = current->params();
-  liveSettingsFromConfig(config, model, &c);
+  liveSettingsFromConfig(config, modelRatio(model), &c);
   try
   {
     auto updated = std::make_shared<Simulator>(*current);
