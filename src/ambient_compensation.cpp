@@ -222,8 +222,8 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
   out.valid = true;
   if (!second || p.motion == AmbientMotion::kNearest)
   {
-    const AmbientFrame* near = !second || std::fabs(first->stamp_s - t) <= std::fabs(second->stamp_s - t) ? first
-                                                                                                           : second;
+    const AmbientFrame* near =
+        !second || std::fabs(first->stamp_s - t) <= std::fabs(second->stamp_s - t) ? first : second;
     out.image = near->image;
     out.fraction = near == first ? 0.0 : 1.0;
     out.status = fmt("nearest ambient frame, %.1f ms from the on-frame", 1e3 * std::fabs(near->stamp_s - t));

@@ -68,12 +68,12 @@ bool parseArgs(int argc, char** argv, Args* a)
       return true;
     };
     std::string rows;
-    if (arg == "--scene" ? !value(&a->scene)
-        : arg == "--csv" ? !value(&a->csv)
-        : arg == "--png" ? !value(&a->png)
+    if (arg == "--scene"      ? !value(&a->scene)
+        : arg == "--csv"      ? !value(&a->csv)
+        : arg == "--png"      ? !value(&a->png)
         : arg == "--rig-yaml" ? !value(&a->rig_yaml)
-        : arg == "--rows" ? !value(&rows)
-                          : false)
+        : arg == "--rows"     ? !value(&rows)
+                              : false)
     {
       std::cerr << "design_rig: " << arg << " needs a value\n";
       return false;
@@ -140,7 +140,8 @@ int main(int argc, char** argv)
   }
   std::cout << sls::formatDesignTable(result, args.rows);
   if (result.recommended >= 0)
-    std::cout << "\n" << sls::formatRigDetails(result) << "\nRecommended rig (YAML for the simulator):\n"
+    std::cout << "\n"
+              << sls::formatRigDetails(result) << "\nRecommended rig (YAML for the simulator):\n"
               << sls::recommendedRigYaml(result);
   else
     std::cout << "\nNo rig reaches the target: relax it or widen the options.\n";

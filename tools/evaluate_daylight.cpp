@@ -21,6 +21,7 @@
 #include <vector>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "structured_light_stabilizer/ambient_compensation.h"
 #include "structured_light_stabilizer/pose_delta.h"
@@ -51,6 +52,8 @@ struct Options
   double texture_period = 0.02;
   double motion = 1.0;  // scale of the jitter (2 mm, 1 mrad at 0.7 Hz)
   std::vector<double> sweep;
+  bool normalise = false;  // strobed: divide the difference by the ambient (the albedo under the dot)
+  double albedo = -1.0;    // > 0: a uniform rock of this albedo (no texture at all)
 };
 
 struct Stats
@@ -111,16 +114,35 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
     p.lighting.dot_to_sun_ratio = LightingParams::sceneDotToSunRatio(RadiometryModel::kCorrected);
   if (o.ratio >= 0.0)
     p.lighting.dot_to_sun_ratio = o.ratio;
-  (void)o.texture_period;  // the fine texture is the simulator's (RockParams) when it has one
+  p.rock.fine_texture_period_m = o.texture_period;  // +-25 % (RockParams' default amplitude)
+  if (o.albedo > 0.0)
+  {
+    p.rock.albedo_min = p.rock.albedo_max = o.albedo;
+    p.rock.fine_texture_period_m = 0.0;
+  }
   return p;
 }
 
 // On-frame minus the compensated ambient, as an image the detector reads
 // (negative differences clipped: the detector subtracts its own background).
-cv::Mat difference(const cv::Mat& on, const cv::Mat& ambient)
+cv::Mat difference(const cv::Mat& on, const cv::Mat& ambient, bool normalise)
 {
   cv::Mat d;
-  cv::subtract(on, ambient, d);
+  if (!normalise)
+  {
+    cv::subtract(on, ambient, d);
+    return d;
+  }
+  // The dot's light over the albedo under it (the ambient frame carries the
+  // albedo), rescaled by the ambient's local mean so that the level stays
+  // that of the rock around the dot: the albedo texture leaves the dot.
+  cv::Mat fo, fa, local;
+  on.convertTo(fo, CV_32F);
+  ambient.convertTo(fa, CV_32F);
+  cv::GaussianBlur(fa, local, cv::Size(0, 0), 15.0);
+  cv::Mat ratio = (fo - fa) / cv::max(fa, 1.0f);
+  ratio = ratio.mul(local);
+  ratio.convertTo(d, CV_8U);
   return d;
 }
 
@@ -173,7 +195,7 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
     {
       const AmbientEstimate amb = compensateAmbient(t, {sim.render(t - period, off).image, t - period},
                                                     {sim.render(t + period, off).image, t + period});
-      image = difference(f.image, amb.image);
+      image = difference(f.image, amb.image, o.normalise);
       texture = amb.image;
     }
     const SpotDetectionResult det = detector.detect(image, PixelFormat::kBgr8);
@@ -269,6 +291,10 @@ int main(int argc, char** argv)
       o.texture_period = std::atof(v.c_str());
     else if (k == "--motion")
       o.motion = std::atof(v.c_str());
+    else if (k == "--albedo")
+      o.albedo = std::atof(v.c_str());
+    else if (k == "--normalise")
+      o.normalise = v != "0";
     else if (k == "--sweep")
       o.sweep = numbers(v);
     else

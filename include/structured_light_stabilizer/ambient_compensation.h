@@ -74,10 +74,10 @@ struct AmbientEstimate
   // for a blend at fraction w (bilinear warping lowers it further). The
   // difference on - image has var_on + noise_variance_scale * var_ambient.
   double noise_variance_scale = 1.0;
-  double fraction = 0.0;  // w: where the on-frame lies, 0 at frame a, 1 at frame b
+  double fraction = 0.0;                       // w: where the on-frame lies, 0 at frame a, 1 at frame b
   cv::Matx33d motion_ab = cv::Matx33d::eye();  // homography a -> b (full-resolution pixels)
-  int points_used = 0;                          // inliers of the homography fit
-  double residual_px = 0.0;                     // their RMS residual
+  int points_used = 0;                         // inliers of the homography fit
+  double residual_px = 0.0;                    // their RMS residual
 };
 
 AmbientEstimate compensateAmbient(double on_stamp_s, const AmbientFrame& a, const AmbientFrame& b,

@@ -236,7 +236,7 @@ private:
   // the projector off on camera/image_ambient; ~rig sets the corrected
   // radiometry from a rig's YAML. Set in setUp(), read-only after.
   bool strobe_ = false;
-  double rig_ratio_ = -1.0;  // the rig's dot/sun ratio; negative: no rig loaded
+  double rig_ratio_ = -1.0;    // the rig's dot/sun ratio; negative: no rig loaded
   bool last_ambient_ = false;  // worker thread: the last frame grabbed was a projector-off frame
 
   // Worker thread: simulated time, the last frame and the simulator that rendered it.

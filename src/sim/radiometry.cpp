@@ -44,8 +44,7 @@ constexpr double kFwhmToSigma = 1.0 / 2.354820045;
 double electronsPerJoule(const SceneInputs& in, const BandPassFilter& filter, double field_angle_rad,
                          const std::function<double(double)>& spectrum, double lo, double hi)
 {
-  auto f = [&](double l)
-  { return spectrum(l) * in.lens_transmission * quantumEfficiency(in, l) / photonEnergy(l); };
+  auto f = [&](double l) { return spectrum(l) * in.lens_transmission * quantumEfficiency(in, l) / photonEnergy(l); };
   if (!filter.enabled)
     return integrate(f, lo, hi, 400);
   // Only the passband (moved off axis) counts: integrate over it alone, so
@@ -168,8 +167,8 @@ void noiseAndCentroid(const SceneAnalysis& a, const RigParams& rig, const ViewCo
   // from the rock; in the image that is C lambda f / (pi D) pixels.
   s->speckle_px = speckleContrast(rig.emitter, tex.roughness_m) * rig.emitter.wavelength_m * focalPx(a) /
                   (kPi * a.inputs.aperture_diameter_m);
-  s->centroid_single_px = std::sqrt(square(s->centroid_noise_single_px) + square(s->texture_bias_single_px) +
-                                    square(s->speckle_px));
+  s->centroid_single_px =
+      std::sqrt(square(s->centroid_noise_single_px) + square(s->texture_bias_single_px) + square(s->speckle_px));
   s->centroid_strobed_px = std::sqrt(square(s->centroid_noise_strobed_px) + square(s->speckle_px));
 }
 
@@ -281,8 +280,8 @@ double whiteDotElectrons(const SceneAnalysis& a, const RigParams& rig, double si
   DotSignal d;
   drive(rig, &d);
   const SensorModel c = makeSensorModel(a.inputs);
-  const double fluence = d.pulse_energy_j * rig.emitter.projector_efficiency /
-                         (a.inputs.dot_rows * a.inputs.dot_cols) / (2.0 * kPi * sigma_m * sigma_m);
+  const double fluence = d.pulse_energy_j * rig.emitter.projector_efficiency / (a.inputs.dot_rows * a.inputs.dot_cols) /
+                         (2.0 * kPi * sigma_m * sigma_m);
   return fluence / kPi * c.cam * c.pixel_area * emitterElectronsPerJoule(a, rig, 0.0, 0.0);
 }
 

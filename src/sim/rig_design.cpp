@@ -96,9 +96,12 @@ Worst worstOf(const SceneAnalysis& a, const DesignInputs& in, const RigParams& r
   return w;
 }
 
-// The camera's full scale: the brightest sunlit rock at ambient_fill of the
-// range, or a typical dot (mid albedo, mid distance) on its rock when that
-// is brighter; never above the full well. *brightest: that rock's electrons.
+// The camera's full scale: the brightest sunlit rock (brightest albedo, the
+// glossy BRDF, the nearest distance) at ambient_fill of the range, never
+// above the full well; *brightest: that rock's electrons. Dots brighter than
+// the rest of the range clip (the detector takes their centroids from the
+// flanks): the gain serves the dimmest dots, whose quantisation is the
+// worst case's noise at 8 bits.
 double chooseFullScale(const SceneAnalysis& a, const DesignInputs& in, RigParams rig, double* brightest)
 {
   const DesignConditions& c = in.conditions;
@@ -110,13 +113,7 @@ double chooseFullScale(const SceneAnalysis& a, const DesignInputs& in, RigParams
   bright.sun_incidence_deg = a.inputs.sun_incidence_min_deg;
   bright.brdf = Brdf::kLambertianGlossy;
   *brightest = evaluateRig(a, rig, bright).sun_e;
-  ViewConditions mid = bright;
-  mid.albedo = 0.5 * (c.albedo_min + c.albedo_max);
-  mid.distance_m = 0.5 * (c.distance_min_m + c.distance_max_m);
-  mid.brdf = Brdf::kLambertian;
-  const DotSignal typical = evaluateRig(a, rig, mid);
-  return std::min(a.inputs.full_well_e,
-                  std::max(*brightest / in.target.ambient_fill, typical.dot_e + typical.sun_e));
+  return std::min(a.inputs.full_well_e, *brightest / in.target.ambient_fill);
 }
 
 bool meets(const DesignTarget& t, const Worst& w)

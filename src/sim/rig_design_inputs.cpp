@@ -38,8 +38,8 @@ std::vector<NamedEmitter> defaultEmitters(const SceneAnalysis& a)
   green.emitter.spectral_fwhm_m = 1.5e-9;  // multimode InGaN diode
   green.emitter.cw_optical_power_w = 1.0;
   green.emitter.wall_plug_efficiency = 0.12;
-  green.emitter.peak_power_factor = 1.0;      // facet damage limits pulses to about the CW rating
-  green.emitter.projector_efficiency = 0.7;   // diffractive 10 x 10 splitter
+  green.emitter.peak_power_factor = 1.0;     // facet damage limits pulses to about the CW rating
+  green.emitter.projector_efficiency = 0.7;  // diffractive 10 x 10 splitter
   green.emitter.thermal_drift_m_per_k = 0.06e-9;
   NamedEmitter red = green;
   red.name = "red_ld_700mw";

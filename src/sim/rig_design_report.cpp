@@ -29,9 +29,8 @@ std::string row(const RigEvaluation& e, const char* label)
 {
   char buf[400];
   const RigParams& r = e.rig;
-  std::snprintf(buf, sizeof(buf),
-                "%-6s %-13s %4.1f %-5s %6.2f %-6s %-3s %9.4g %7.1f %7.1f %7.3f %7.3f %9.3g  %s", label,
-                e.emitter_name.c_str(), r.beam_sigma_rad * 1e3, r.pulsed ? "pulse" : "cont", r.exposure_s * 1e3,
+  std::snprintf(buf, sizeof(buf), "%-6s %-13s %4.1f %-5s %6.2f %-6s %-3s %9.4g %7.1f %7.1f %7.3f %7.3f %9.3g  %s",
+                label, e.emitter_name.c_str(), r.beam_sigma_rad * 1e3, r.pulsed ? "pulse" : "cont", r.exposure_s * 1e3,
                 filterName(r).c_str(), r.strobe ? "yes" : "no", e.worst_ratio, e.worst.snr_single_textured,
                 e.worst.snr_strobed_textured, e.centroid_px, e.worst.speckle_px, e.required_electrical_w,
                 e.feasible ? "ok" : e.why_not.c_str());
@@ -53,9 +52,9 @@ std::string formatDesignTable(const DesignResult& res, size_t max_rows)
                 "budget %.0f mW electrical at %.0f Hz, %d-bit output.\n\n",
                 c.sun_level, c.sun_level * res.analysis.irradiance_latitude.max, c.albedo_min, c.albedo_max,
                 c.distance_min_m, c.distance_max_m, 0.5 * c.temperature_range_k, c.texture.contrast * 100,
-                c.texture.period_m * 1e3, c.texture.roughness_m * 1e3, c.texture.ambient_misalignment_px,
-                in.target.snr, in.target.centroid_px, in.target.min_dot_sigma_px,
-                in.options.electrical_budget_w * 1e3, in.options.frame_rate_hz, in.options.output_bits);
+                c.texture.period_m * 1e3, c.texture.roughness_m * 1e3, c.texture.ambient_misalignment_px, in.target.snr,
+                in.target.centroid_px, in.target.min_dot_sigma_px, in.options.electrical_budget_w * 1e3,
+                in.options.frame_rate_hz, in.options.output_bits);
   os << buf;
   os << "rank   emitter       mrad drive  exp_ms filter strb dot/sun   SNR_1   SNR_2 cent_px speckle   need_W  "
         "verdict\n";
@@ -100,7 +99,8 @@ std::string formatRigDetails(const DesignResult& res)
       w.pulse_energy_j * 1e3, w.peak_optical_w, w.peak_limited ? " (the emitter's limit)" : "",
       w.average_electrical_w * 1e3, w.dot_energy_j * 1e6, w.dot_sigma_m * 1e3, w.dot_sigma_px, w.dot_e, w.sun_e,
       w.read_noise_e, w.dark_e, w.snr_single, w.snr_single_textured, w.snr_strobed, w.snr_strobed_textured,
-      e.centroid_px, e.rig.strobe ? e.worst_centroid.centroid_noise_strobed_px : e.worst_centroid.centroid_noise_single_px,
+      e.centroid_px,
+      e.rig.strobe ? e.worst_centroid.centroid_noise_strobed_px : e.worst_centroid.centroid_noise_single_px,
       e.worst_centroid.speckle_px, e.worst_centroid.texture_bias_single_px, e.rig.full_scale_e, e.rig.output_bits,
       e.ambient_fill, e.required_filter_m * 1e9, sim.exposure, sim.dot_to_sun_ratio, sim.gain_dn_per_electron,
       sim.read_noise_dn);
@@ -195,8 +195,8 @@ const Mode kModes[] = {{"continuous, one frame", false, false, false, 1, 0},
 // best filter width per exposure, sorted by exposure.
 std::map<std::pair<std::string, int>, std::vector<const RigEvaluation*>> curves(const DesignResult& res)
 {
-  const double sigma = res.recommended >= 0 ? res.rigs[res.recommended].rig.beam_sigma_rad
-                                            : res.inputs.options.beam_sigma_rad.front();
+  const double sigma =
+      res.recommended >= 0 ? res.rigs[res.recommended].rig.beam_sigma_rad : res.inputs.options.beam_sigma_rad.front();
   std::map<std::pair<std::string, int>, std::vector<const RigEvaluation*>> out;
   for (const auto& e : res.rigs)
   {
@@ -230,8 +230,8 @@ void drawMarker(cv::Mat& img, cv::Point p, int marker, const cv::Scalar& colour)
     cv::rectangle(img, p - cv::Point(3, 3), p + cv::Point(3, 3), colour, cv::FILLED);
 }
 
-void drawCurve(cv::Mat& img, const Axes& ax, const std::vector<const RigEvaluation*>& pts, bool ratio,
-               const Mode& mode, const cv::Scalar& colour)
+void drawCurve(cv::Mat& img, const Axes& ax, const std::vector<const RigEvaluation*>& pts, bool ratio, const Mode& mode,
+               const cv::Scalar& colour)
 {
   auto value = [&](const RigEvaluation* e)
   { return std::min(std::max(ratio ? e->worst_ratio : e->effective_snr, 1e-3), 1e4); };
@@ -240,8 +240,7 @@ void drawCurve(cv::Mat& img, const Axes& ax, const std::vector<const RigEvaluati
     const cv::Point p = ax.at(pts[i]->rig.exposure_s * 1e3, value(pts[i]));
     drawMarker(img, p, mode.marker, colour);
     if (i + 1 < pts.size())
-      cv::line(img, p, ax.at(pts[i + 1]->rig.exposure_s * 1e3, value(pts[i + 1])), colour, mode.thickness,
-               cv::LINE_AA);
+      cv::line(img, p, ax.at(pts[i + 1]->rig.exposure_s * 1e3, value(pts[i + 1])), colour, mode.thickness, cv::LINE_AA);
   }
 }
 
@@ -276,10 +275,10 @@ cv::Mat renderDesignPlot(const DesignResult& res, int width, int height)
   drawAxes(img, snr_ax, "worst-case effective SNR", "");
   drawAxes(img, ratio_ax, "worst-case dot / sunlit rock", "");
   cv::line(img, snr_ax.at(0.2, res.inputs.target.snr), snr_ax.at(40.0, res.inputs.target.snr), {0, 0, 255}, 1);
-  cv::putText(img, "target", snr_ax.at(0.22, res.inputs.target.snr) + cv::Point(0, -5), cv::FONT_HERSHEY_SIMPLEX,
-              0.4, {0, 0, 255});
-  const cv::Scalar palette[] = {{180, 119, 31}, {14, 127, 255}, {44, 160, 44}, {40, 39, 214}, {189, 103, 148},
-                                {75, 86, 140}};
+  cv::putText(img, "target", snr_ax.at(0.22, res.inputs.target.snr) + cv::Point(0, -5), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+              {0, 0, 255});
+  const cv::Scalar palette[] = {{180, 119, 31}, {14, 127, 255},  {44, 160, 44},
+                                {40, 39, 214},  {189, 103, 148}, {75, 86, 140}};
   std::vector<std::string> emitters;
   for (const auto& e : res.inputs.options.emitters)
     emitters.push_back(e.name);
@@ -314,8 +313,7 @@ std::string recommendedRigYaml(const DesignResult& res)
                 e.rig.exposure_s * 1e3, filterName(e.rig).c_str(), e.rig.strobe ? "on" : "off",
                 res.inputs.conditions.sun_level, res.inputs.conditions.albedo_min, res.inputs.conditions.albedo_max,
                 res.inputs.conditions.distance_min_m, res.inputs.conditions.distance_max_m, e.worst_ratio,
-                e.effective_snr, e.centroid_px, e.required_electrical_w * 1e3,
-                e.rig.electrical_budget_w * 1e3);
+                e.effective_snr, e.centroid_px, e.required_electrical_w * 1e3, e.rig.electrical_budget_w * 1e3);
   RigParams rig = e.rig;
   rig.name = "daylight_" + e.emitter_name;
   return rigToYaml(rig, buf);

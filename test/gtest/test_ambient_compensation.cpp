@@ -136,8 +136,8 @@ TEST(AmbientCompensation, PlaneHomographyFromTheRigsMotionIsAHint)
             << rmsInside(tracked.image, truth) << " DN\n";
   EXPECT_LT(rmsInside(hinted.image, truth), 1.0);
   // The tracked homography agrees with the true one to a small fraction of a pixel.
-  for (const cv::Point2d q : {cv::Point2d(100, 100), cv::Point2d(900, 150), cv::Point2d(512, 512),
-                              cv::Point2d(200, 900)})
+  for (const cv::Point2d q :
+       {cv::Point2d(100, 100), cv::Point2d(900, 150), cv::Point2d(512, 512), cv::Point2d(200, 900)})
   {
     const cv::Vec3d x = H * cv::Vec3d(q.x, q.y, 1), y = tracked.motion_ab * cv::Vec3d(q.x, q.y, 1);
     EXPECT_NEAR(x[0] / x[2], y[0] / y[2], 0.05);

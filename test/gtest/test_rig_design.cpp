@@ -139,8 +139,8 @@ TEST(RigRadiometry, NarrowFilterPassesPlancksShareOfTheSun)
   const double share = planck * 1e-9 / (kSigma * std::pow(t, 4));
   const HandCamera hc;
   const double f50 = study().irradiance_latitude.max;
-  const double electrons = f50 * share / kPi * hc.cam * hc.pixel_area * rig.exposure_s * 0.9 * hc.lens * qeAt520() /
-                           (kH * kC / l);
+  const double electrons =
+      f50 * share / kPi * hc.cam * hc.pixel_area * rig.exposure_s * 0.9 * hc.lens * qeAt520() / (kH * kC / l);
   EXPECT_NEAR(whiteSunElectrons(study(), rig), electrons, 2e-3 * electrons);
   // Off axis the passband moves blue: centre sqrt(1 - (sin(theta)/n)^2).
   const double theta = 30.0 * kPi / 180.0;
@@ -200,8 +200,7 @@ TEST(RigRadiometry, SpeckleAndTextureBias)
   const double fx = study().focal_length_m / 12e-6;
   EXPECT_NEAR(s.speckle_px, speckleContrast(laser, 5e-4) * 520e-9 * fx / (kPi * 1.9e-3), 1e-12);
   const double sg = 0.002 * fx, k = 2 * kPi / (0.02 * fx / 1.5);
-  EXPECT_NEAR(s.texture_bias_single_px, 0.25 * k * sg * sg * std::exp(-0.5 * k * k * sg * sg) / std::sqrt(2.0),
-              1e-9);
+  EXPECT_NEAR(s.texture_bias_single_px, 0.25 * k * sg * sg * std::exp(-0.5 * k * k * sg * sg) / std::sqrt(2.0), 1e-9);
   rig.strobe = true;  // the ambient frame gives the albedo under the dot
   EXPECT_EQ(evaluateRig(study(), rig, view, tex).texture_bias_single_px, 0.0);
 }
@@ -218,8 +217,8 @@ TEST(RigDesign, StudyRigFailsAndTheRecommendedOneMeetsTheTarget)
   ASSERT_GE(r.recommended, 0);
   const RigEvaluation& best = r.rigs[r.recommended];
   std::cout << "[ MEASURE ] recommended: " << best.emitter_name << " " << best.rig.exposure_s * 1e3 << " ms, SNR "
-            << best.effective_snr << ", centroid " << best.centroid_px << " px, needs "
-            << best.required_electrical_w << " W\n";
+            << best.effective_snr << ", centroid " << best.centroid_px << " px, needs " << best.required_electrical_w
+            << " W\n";
   EXPECT_GE(best.effective_snr, in.target.snr);
   EXPECT_LE(best.centroid_px, in.target.centroid_px);
   EXPECT_GE(best.worst.dot_sigma_px, in.target.min_dot_sigma_px);
@@ -319,8 +318,7 @@ TEST(RigDesign, SimulatorRadiometryIsTheRigsElectronsInDn)
   const SimRadiometry r = simulatorRadiometry(a, rig);
   EXPECT_NEAR(r.gain_dn_per_electron, 255.0 / 1e5, 1e-15);
   // White sunlit rock at sun_level 1: kSunFullScaleDn x exposure DN = its electrons x gain.
-  EXPECT_NEAR(LightingParams::kSunFullScaleDn * r.exposure, whiteSunElectrons(a, rig) * r.gain_dn_per_electron,
-              1e-9);
+  EXPECT_NEAR(LightingParams::kSunFullScaleDn * r.exposure, whiteSunElectrons(a, rig) * r.gain_dn_per_electron, 1e-9);
   EXPECT_NEAR(r.dot_to_sun_ratio, whiteDotElectrons(a, rig, 3e-3) / whiteSunElectrons(a, rig), 1e-12);
   EXPECT_NEAR(r.read_noise_dn, 25.0 * 255.0 / 1e5, 1e-12);
   SimulatorParams p;

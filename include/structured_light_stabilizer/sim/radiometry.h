@@ -41,9 +41,9 @@ enum class SunSpectrum
 struct EmitterParams
 {
   EmitterKind kind = EmitterKind::kLed;
-  double wavelength_m = 520e-9;     // centre (peak) wavelength at the operating temperature
-  double spectral_fwhm_m = 30e-9;   // Gaussian spectrum of this full width at half maximum
-  double cw_optical_power_w = 0.0;  // optical power at the rated continuous drive
+  double wavelength_m = 520e-9;       // centre (peak) wavelength at the operating temperature
+  double spectral_fwhm_m = 30e-9;     // Gaussian spectrum of this full width at half maximum
+  double cw_optical_power_w = 0.0;    // optical power at the rated continuous drive
   double wall_plug_efficiency = 0.1;  // optical / electrical
   // Largest optical power of a pulse / the continuous rating (a pulsed LED
   // takes a few times its rated current at a low duty cycle; a laser diode
@@ -107,11 +107,11 @@ struct ViewConditions
 {
   double sun_level = 1.0;  // 1 = the study's brightest sun (F50 max), 0 = night
   double albedo = 0.05;
-  double distance_m = 2.0;            // projector (and camera) to the rock
-  double sun_incidence_deg = 10.0;    // rock normal vs sun
+  double distance_m = 2.0;              // projector (and camera) to the rock
+  double sun_incidence_deg = 10.0;      // rock normal vs sun
   double emitter_incidence_deg = 10.0;  // rock normal vs beam (the study: 10 deg)
   Brdf brdf = Brdf::kLambertian;
-  double field_angle_deg = 0.0;  // off-axis angle in the camera (filter shift, cos^4 vignetting)
+  double field_angle_deg = 0.0;               // off-axis angle in the camera (filter shift, cos^4 vignetting)
   double emitter_temperature_offset_k = 0.0;  // from the design temperature (moves the emitter's line)
 };
 
@@ -135,11 +135,11 @@ struct TextureConditions
 struct DotSignal
 {
   // Drive.
-  double pulse_energy_j = 0.0;      // optical energy emitted during one projector-on exposure
-  double peak_optical_w = 0.0;      // optical power during the exposure
+  double pulse_energy_j = 0.0;  // optical energy emitted during one projector-on exposure
+  double peak_optical_w = 0.0;  // optical power during the exposure
   double average_electrical_w = 0.0;
-  bool peak_limited = false;       // the pulse is capped by peak_power_factor, not by the budget
-  double dot_energy_j = 0.0;       // energy in one dot
+  bool peak_limited = false;  // the pulse is capped by peak_power_factor, not by the budget
+  double dot_energy_j = 0.0;  // energy in one dot
   // Geometry.
   double dot_sigma_m = 0.0;   // on the rock
   double dot_sigma_px = 0.0;  // in the image, with defocus, diffraction and the pixel

@@ -53,9 +53,11 @@ struct DesignTarget
   // threshold of 5-6 x the background's noise misses no dot and makes no
   // false one; the centroid's bound is the stricter requirement.
   double snr = 20.0;
-  double centroid_px = 0.03;    // RMS centroid error at the worst case (the pipeline's bound: 0.05)
+  double centroid_px = 0.03;      // RMS centroid error at the worst case (the pipeline's bound: 0.05)
   double min_dot_sigma_px = 1.5;  // sub-pixel centroids need a dot of >= 1.5-2 px sigma
-  double ambient_fill = 0.25;   // the brightest sunlit rock at this share of the output's range
+  // The camera's gain: the brightest sunlit rock at this share of the
+  // output's range (brighter dots clip).
+  double ambient_fill = 0.5;
 };
 
 struct NamedEmitter
@@ -102,8 +104,8 @@ DesignInputs loadDesignInputs(const std::string& path, const SceneInputs& scene 
 struct RigEvaluation
 {
   std::string emitter_name;
-  RigParams rig;           // with the filter centred and the camera's full scale chosen
-  DotSignal worst;         // at the worst case of the effective SNR
+  RigParams rig;             // with the filter centred and the camera's full scale chosen
+  DotSignal worst;           // at the worst case of the effective SNR
   DotSignal worst_centroid;  // at the worst case of the centroid error
   double worst_ratio = 0.0;  // lowest dot/sun ratio over the cases
   double effective_snr = 0.0;
@@ -111,7 +113,7 @@ struct RigEvaluation
   double ambient_fill = 0.0;  // brightest sunlit rock / full well
   double required_filter_m = 0.0;
   double required_electrical_w = 0.0;  // average, to just reach the targets (NaN: never)
-  int additions = 0;  // pulsed + filter + laser + strobe
+  int additions = 0;                   // pulsed + filter + laser + strobe
   bool feasible = false;
   std::string why_not;  // the first failed requirement
 };
