@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <opencv2/imgproc.hpp>
+
 namespace structured_light_stabilizer
 {
 
@@ -19,37 +21,52 @@ std::string StrobeDemuxParams::validate() const
   return "";
 }
 
+namespace
+{
+
+// One pixel in four per row and column, as float: what the vote compares.
+cv::Mat decimated(const cv::Mat& image)
+{
+  cv::Mat small, out;
+  cv::resize(image, small, cv::Size((image.cols + 3) / 4, (image.rows + 3) / 4), 0, 0, cv::INTER_NEAREST);
+  small.convertTo(out, CV_32F);
+  return out;
+}
+
+// 99.9th plus 0.1th percentile of a - b (float images of one size and type).
+double tailBalance(const cv::Mat& a, const cv::Mat& b)
+{
+  const cv::Mat diff = a - b;
+  const cv::Mat d = diff.reshape(1, 1);
+  std::vector<float> v(d.ptr<float>(), d.ptr<float>() + d.total());
+  if (v.size() < 1000)
+    return 0.0;
+  const size_t hi = v.size() * 999 / 1000, lo = v.size() / 1000;
+  std::nth_element(v.begin(), v.begin() + hi, v.end());
+  const float top = v[hi];
+  std::nth_element(v.begin(), v.begin() + lo, v.end());
+  return top + v[lo];
+}
+
+}  // namespace
+
 double strobePairScore(const cv::Mat& current, const cv::Mat& previous)
 {
   if (current.size() != previous.size() || current.type() != previous.type() || current.empty())
     return 0.0;
-  std::vector<float> d;
-  d.reserve(static_cast<size_t>(current.total() / 16 * current.channels()) + 16);
-  cv::Mat a, b;
-  current.convertTo(a, CV_32F);
-  previous.convertTo(b, CV_32F);
-  const int n = a.channels();
-  for (int r = 0; r < a.rows; r += 4)
-  {
-    const float *pa = a.ptr<float>(r), *pb = b.ptr<float>(r);
-    for (int c = 0; c < a.cols; c += 4)
-      for (int k = 0; k < n; ++k)
-        d.push_back(pa[c * n + k] - pb[c * n + k]);
-  }
-  const size_t hi = d.size() * 999 / 1000, lo = d.size() / 1000;
-  std::nth_element(d.begin(), d.begin() + hi, d.end());
-  const float top = d[hi];
-  std::nth_element(d.begin(), d.begin() + lo, d.end());
-  return top + d[lo];
+  return tailBalance(decimated(current), decimated(previous));
 }
 
 StrobeDemux::StrobeDemux(const StrobeDemuxParams& params) : params_(params), phase_(params.phase) {}
 
 bool StrobeDemux::parityOn(const StrobedFrame& f)
 {
-  if (params_.auto_phase && !previous_.empty())
+  // The vote keeps its own (decimated) copy: the caller's image may not outlive the call.
+  const cv::Mat current = params_.auto_phase ? decimated(f.image) : cv::Mat();
+  if (params_.auto_phase && !previous_.empty() && previous_.size() == current.size() &&
+      previous_.type() == current.type())
   {
-    last_score_ = strobePairScore(f.image, previous_);
+    last_score_ = tailBalance(current, previous_);
     if (last_score_ != 0.0)
     {
       // The vote, in the phase's terms: the parity that this pair says is on.
@@ -66,7 +83,7 @@ bool StrobeDemux::parityOn(const StrobedFrame& f)
         phase_ = 0;
     }
   }
-  previous_ = f.image;
+  previous_ = current;
   return f.index % 2 == phase_;
 }
 

@@ -17,7 +17,9 @@
 //
 // Contract: images of any type OpenCV can subtract (one stream keeps one
 // type and size); stamps in seconds. Frames come out in the order they went
-// in. Not thread-safe; one per stream.
+// in, each with the image header it came with (not a copy: in trigger mode
+// the caller keeps the data alive until the frame comes out; the parity vote
+// keeps its own decimated copy). Not thread-safe; one per stream.
 #pragma once
 
 #include <deque>
@@ -80,7 +82,7 @@ private:
   StrobeDemuxParams params_;
   int phase_ = 0;
   int count_ = 0;
-  cv::Mat previous_;
+  cv::Mat previous_;  // decimated copy of the last frame (parity vote)
   double last_score_ = 0.0;
   std::deque<int> vote_history_;  // +1: the pair says "this frame is on"
   std::deque<StrobedFrame> waiting_;

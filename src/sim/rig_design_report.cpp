@@ -233,8 +233,10 @@ void drawMarker(cv::Mat& img, cv::Point p, int marker, const cv::Scalar& colour)
 void drawCurve(cv::Mat& img, const Axes& ax, const std::vector<const RigEvaluation*>& pts, bool ratio, const Mode& mode,
                const cv::Scalar& colour)
 {
-  auto value = [&](const RigEvaluation* e)
-  { return std::min(std::max(ratio ? e->worst_ratio : e->effective_snr, 1e-3), 1e4); };
+  // Clamped to the axes: a value off the scale is drawn on its edge.
+  auto value = [&](const RigEvaluation* e) {
+    return std::min(std::max(ratio ? e->worst_ratio : e->effective_snr, std::pow(10.0, ax.y0)), std::pow(10.0, ax.y1));
+  };
   for (size_t i = 0; i < pts.size(); ++i)
   {
     const cv::Point p = ax.at(pts[i]->rig.exposure_s * 1e3, value(pts[i]));
