@@ -9,6 +9,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "structured_light_stabilizer/sim/rig_design.h"
+#include "yaml_reader.h"
 
 namespace structured_light_stabilizer
 {
@@ -51,71 +52,7 @@ std::vector<NamedEmitter> defaultEmitters(const SceneAnalysis& a)
   return {study, led, green, red};
 }
 
-struct Reader
-{
-  std::string source;
-
-  [[noreturn]] void refuse(const YAML::Node& node, const std::string& reason) const
-  {
-    const YAML::Mark m = node.Mark();
-    const std::string at = m.line < 0 ? source : source + ":" + std::to_string(m.line + 1);
-    throw std::invalid_argument("rig_design: " + at + ": " + reason);
-  }
-
-  void onlyKeys(const YAML::Node& node, const std::string& what, const std::set<std::string>& known) const
-  {
-    if (!node.IsMap())
-      refuse(node, what + " must be a mapping");
-    for (const auto& kv : node)
-      if (!known.count(kv.first.as<std::string>()))
-        refuse(kv.first, "unknown key '" + what + "." + kv.first.as<std::string>() + "'");
-  }
-
-  void number(const YAML::Node& node, const char* key, double scale, double* v) const
-  {
-    const YAML::Node n = node[key];
-    double x = 0.0;
-    if (!n)
-      return;
-    if (!n.IsScalar() || !YAML::convert<double>::decode(n, x) || !std::isfinite(x))
-      refuse(n, std::string(key) + " must be a finite number");
-    *v = x * scale;
-  }
-
-  void numbers(const YAML::Node& node, const char* key, double scale, std::vector<double>* v) const
-  {
-    const YAML::Node n = node[key];
-    if (!n)
-      return;
-    if (!n.IsSequence() || n.size() == 0)
-      refuse(n, std::string(key) + " must be a non-empty list of numbers");
-    v->clear();
-    for (const auto& item : n)
-    {
-      double x = 0.0;
-      if (!item.IsScalar() || !YAML::convert<double>::decode(item, x) || !std::isfinite(x))
-        refuse(item, std::string(key) + " must hold numbers");
-      v->push_back(x * scale);
-    }
-  }
-
-  void booleans(const YAML::Node& node, const char* key, std::vector<bool>* v) const
-  {
-    const YAML::Node n = node[key];
-    if (!n)
-      return;
-    if (!n.IsSequence() || n.size() == 0)
-      refuse(n, std::string(key) + " must be a non-empty list of true/false");
-    v->clear();
-    for (const auto& item : n)
-    {
-      bool b = false;
-      if (!item.IsScalar() || !YAML::convert<bool>::decode(item, b))
-        refuse(item, std::string(key) + " must hold true or false");
-      v->push_back(b);
-    }
-  }
-};
+using Reader = sim::YamlReader;
 
 void readConditions(const Reader& r, const YAML::Node& n, DesignConditions* c)
 {
@@ -216,7 +153,7 @@ DesignInputs designInputsFromYaml(const std::string& yaml_text, const std::strin
 {
   DesignInputs in = defaultDesignInputs();
   in.scene = scene;
-  const Reader r{source};
+  const Reader r{"rig_design", source};
   try
   {
     const YAML::Node root = YAML::Load(yaml_text);

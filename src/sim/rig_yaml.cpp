@@ -11,6 +11,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include "structured_light_stabilizer/sim/radiometry.h"
+#include "yaml_reader.h"
 
 namespace structured_light_stabilizer
 {
@@ -18,74 +19,7 @@ namespace structured_light_stabilizer
 namespace
 {
 
-struct Reader
-{
-  std::string source;
-
-  [[noreturn]] void refuse(const YAML::Node& node, const std::string& reason) const
-  {
-    const YAML::Mark m = node.Mark();
-    const std::string at = m.line < 0 ? source : source + ":" + std::to_string(m.line + 1);
-    throw std::invalid_argument("rig: " + at + ": " + reason);
-  }
-
-  // Refuses keys of `node` that are not in `known`.
-  void onlyKeys(const YAML::Node& node, const std::string& what, const std::set<std::string>& known) const
-  {
-    if (!node.IsMap())
-      refuse(node, what + " must be a mapping");
-    std::string list;
-    for (const auto& k : known)
-      list += (list.empty() ? "" : ", ") + k;
-    for (const auto& kv : node)
-      if (!known.count(kv.first.as<std::string>()))
-        refuse(kv.first, "unknown key '" + what + "." + kv.first.as<std::string>() + "' (known: " + list + ")");
-  }
-
-  // node[key] * scale into *v when present.
-  void number(const YAML::Node& node, const char* key, double scale, double* v) const
-  {
-    const YAML::Node n = node[key];
-    if (!n)
-      return;
-    double x = 0.0;
-    if (!n.IsScalar() || !YAML::convert<double>::decode(n, x) || !std::isfinite(x))
-      refuse(n, std::string(key) + " must be a finite number");
-    *v = x * scale;
-  }
-
-  void integer(const YAML::Node& node, const char* key, int* v) const
-  {
-    double x = *v;
-    number(node, key, 1.0, &x);
-    if (x != std::floor(x) || std::fabs(x) > 1e6)
-      refuse(node[key], std::string(key) + " must be an integer");
-    *v = static_cast<int>(x);
-  }
-
-  // A word out of `choices`, as its index; -1 when absent.
-  int word(const YAML::Node& node, const char* key, const std::vector<std::string>& choices) const
-  {
-    const YAML::Node n = node[key];
-    if (!n)
-      return -1;
-    const std::string s = n.IsScalar() ? n.Scalar() : "";
-    for (size_t i = 0; i < choices.size(); ++i)
-      if (s == choices[i])
-        return static_cast<int>(i);
-    std::string list;
-    for (const auto& c : choices)
-      list += (list.empty() ? "" : " | ") + c;
-    refuse(n, std::string(key) + " must be one of " + list);
-  }
-
-  void boolean(const YAML::Node& node, const char* key, bool* v) const
-  {
-    const YAML::Node n = node[key];
-    if (n && (!n.IsScalar() || !YAML::convert<bool>::decode(n, *v)))
-      refuse(n, std::string(key) + " must be true or false");
-  }
-};
+using Reader = sim::YamlReader;
 
 void readEmitter(const Reader& r, const YAML::Node& n, EmitterParams* e)
 {
@@ -205,7 +139,7 @@ std::string rigToYaml(const RigParams& rig, const std::string& comment)
 
 RigParams rigFromYaml(const SceneAnalysis& analysis, const std::string& yaml_text, const std::string& source)
 {
-  const Reader r{source};
+  const Reader r{"rig", source};
   RigParams rig;
   try
   {
