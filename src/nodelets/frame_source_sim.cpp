@@ -30,6 +30,9 @@ namespace structured_light_stabilizer
 namespace
 {
 
+// ~radiometry's default: the study's brightness as stated.
+constexpr const char* kDefaultRadiometry = "study";
+
 bool radiometryModel(const std::string& name, RadiometryModel* model)
 {
   if (name == "study")
@@ -211,7 +214,8 @@ public:
 
 private:
   std::string readLighting(SimulatorParams* c);
-  std::string applyRig(SimulatorParams* c);
+  SimRadiometry rigRadiometry();
+  std::string applyRadiometry(const SimRadiometry& r, SimulatorParams* c);
   double modelRatio(RadiometryModel model) const;
   void useUrlCalibration(SimulatorParams* c) const;
   bool build(const SimulatorParams& c, const std::string& ratio_source);
@@ -236,7 +240,8 @@ private:
   // the projector off on camera/image_ambient; ~rig sets the corrected
   // radiometry from a rig's YAML. Set in setUp(), read-only after.
   bool strobe_ = false;
-  double rig_ratio_ = -1.0;    // the rig's dot/sun ratio; negative: no rig loaded
+  double rig_ratio_ = 0.0;     // the corrected radiometry's rig's dot/sun ratio (live radiometry switches)
+  std::string rig_note_;       // the rig, for the start-up line
   bool last_ambient_ = false;  // worker thread: the last frame grabbed was a projector-off frame
 
   // Worker thread: simulated time, the last frame and the simulator that rendered it.
@@ -251,65 +256,78 @@ private:
 // from, for the start-up line.
 std::string SimSource::readLighting(SimulatorParams* c)
 {
-  radiometry_ = ctx_.pnh.param<std::string>("radiometry", "study");
+  radiometry_ = ctx_.pnh.param<std::string>("radiometry", kDefaultRadiometry);
   RadiometryModel model = RadiometryModel::kStudyAsStated;
   if (!radiometryModel(radiometry_, &model))
   {
-    ctx_.error(stringf("unknown ~radiometry '%s' (study | corrected); using 'study'", radiometry_.c_str()));
-    radiometry_ = "study";
-    model = RadiometryModel::kStudyAsStated;
+    ctx_.error(
+        stringf("unknown ~radiometry '%s' (study | corrected); using '%s'", radiometry_.c_str(), kDefaultRadiometry));
+    radiometry_ = kDefaultRadiometry;
+    radiometryModel(radiometry_, &model);
     ctx_.pnh.setParam("radiometry", radiometry_);  // dynamic_reconfigure starts from it
   }
-  const std::string rig_note = model == RadiometryModel::kCorrected ? applyRig(c) : "";
+  std::string note = ", " + radiometry_ + " radiometry";
+  const SimRadiometry rig = rigRadiometry();  // also for a live switch to 'corrected'
+  if (model == RadiometryModel::kCorrected)
+    note += applyRadiometry(rig, c);
+  else
+    applyRadiometry(studySimRadiometry(), c);
   double ratio = -1.0;
   ParamReader(ctx_.pnh, ctx_.error).number("dot_to_sun_ratio", &ratio);
   c->lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : modelRatio(model);
-  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry" + rig_note;
+  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : note;
 }
 
 double SimSource::modelRatio(RadiometryModel model) const
 {
-  if (model == RadiometryModel::kCorrected && rig_ratio_ >= 0.0)
-    return rig_ratio_;
-  return LightingParams::sceneDotToSunRatio(model);
+  return model == RadiometryModel::kCorrected ? rig_ratio_ : studySimRadiometry().dot_to_sun_ratio;
 }
 
-// ~rig (corrected radiometry): the rig's exposure, gain, read noise, beam and
-// dot brightness (radiometry.h), pulsed for the frames ~strobe lights. An
-// explicit ~exposure or ~read_noise keeps its value. Returns the start-up
-// line's note; on a bad file says why and keeps the plain corrected ratio.
-std::string SimSource::applyRig(SimulatorParams* c)
+// The corrected radiometry's rig (radiometry.h): ~rig's file, else the
+// recommended one; pulsed for the frames ~strobe lights. Sets rig_ratio_
+// and rig_note_; a bad file is said and the recommended rig used.
+SimRadiometry SimSource::rigRadiometry()
 {
   const std::string path = ctx_.pnh.param<std::string>("rig", "");
-  if (path.empty())
-    return "";
+  const SceneAnalysis analysis = analyseScene(SceneInputs());
+  RigParams rig = RigParams::recommendedDaylight();
   try
   {
-    const SceneAnalysis analysis = analyseScene(SceneInputs());
-    RigParams rig = loadRig(analysis, path);
-    rig.strobe = strobe_;  // the projector fires on the frames this driver lights
-    const SimRadiometry r = simulatorRadiometry(analysis, rig);
-    const double exposure = c->lighting.exposure, read_noise = c->sensor.read_noise_dn;
-    applySimRadiometry(r, c);
-    // Explicit values win; the rig's are written back so that
-    // dynamic_reconfigure starts from them.
-    if (ctx_.pnh.hasParam("exposure"))
-      c->lighting.exposure = exposure;
-    else
-      ctx_.pnh.setParam("exposure", r.exposure);
-    if (ctx_.pnh.hasParam("read_noise"))
-      c->sensor.read_noise_dn = read_noise;
-    else
-      ctx_.pnh.setParam("read_noise", r.read_noise_dn);
-    rig_ratio_ = r.dot_to_sun_ratio;
-    return stringf(", rig '%s' (%s, %.2f ms, %.0f e-/DN)", rig.name.c_str(), path.c_str(), rig.exposure_s * 1e3,
-                   1.0 / r.gain_dn_per_electron);
+    if (!path.empty())
+      rig = loadRig(analysis, path);
   }
   catch (const std::exception& e)
   {
-    ctx_.error(stringf("~rig: %s; using the corrected study LED without a rig", e.what()));
-    return "";
+    ctx_.error(stringf("~rig: %s; using the recommended daylight rig", e.what()));
   }
+  rig.strobe = strobe_;  // the projector fires on the frames this driver lights
+  const SimRadiometry r = simulatorRadiometry(analysis, rig);
+  rig_ratio_ = r.dot_to_sun_ratio;
+  rig_note_ = stringf(", rig '%s' (%s, %.2f ms, %.0f e-/DN)", rig.name.c_str(),
+                      path.empty() ? "built in" : path.c_str(), rig.exposure_s * 1e3, 1.0 / r.gain_dn_per_electron);
+  return r;
+}
+
+// The radiometry's exposure, gain, read noise, beam and wavelength; the
+// parameters given explicitly keep their values (read before), the others
+// are written back so that dynamic_reconfigure starts from them.
+std::string SimSource::applyRadiometry(const SimRadiometry& r, SimulatorParams* c)
+{
+  const SimulatorParams explicit_values = *c;
+  applySimRadiometry(r, c);
+  if (ctx_.pnh.hasParam("exposure"))
+    c->lighting.exposure = explicit_values.lighting.exposure;
+  else
+    ctx_.pnh.setParam("exposure", c->lighting.exposure);
+  if (ctx_.pnh.hasParam("read_noise"))
+    c->sensor.read_noise_dn = explicit_values.sensor.read_noise_dn;
+  else
+    ctx_.pnh.setParam("read_noise", c->sensor.read_noise_dn);
+  if (ctx_.pnh.hasParam("gain"))
+    c->sensor.gain_dn_per_electron = explicit_values.sensor.gain_dn_per_electron;
+  if (ctx_.pnh.hasParam("beam_sigma"))
+    c->projector.beam_sigma_rad = explicit_values.projector.beam_sigma_rad;
+  return rig_note_;
 }
 
 // A calibration file for the simulated camera replaces its intrinsics (and

@@ -212,6 +212,31 @@ RigParams RigParams::studyDesign(const SceneAnalysis& a)
   return rig;
 }
 
+RigParams RigParams::recommendedDaylight()
+{
+  RigParams rig;
+  rig.name = "daylight_green_ld_1w";
+  EmitterParams& e = rig.emitter;
+  e.kind = EmitterKind::kLaserDiode;
+  e.wavelength_m = 520e-9;
+  e.spectral_fwhm_m = 1.5e-9;
+  e.cw_optical_power_w = 1.0;
+  e.wall_plug_efficiency = 0.12;
+  e.peak_power_factor = 1.0;
+  e.projector_efficiency = 0.7;
+  e.thermal_drift_m_per_k = 0.06e-9;
+  rig.beam_sigma_rad = 1.5e-3;
+  rig.pulsed = true;
+  rig.electrical_budget_w = 0.3;
+  rig.exposure_s = 2e-3;
+  rig.frame_rate_hz = 30.0;
+  rig.strobe = true;
+  rig.filter.enabled = false;
+  rig.full_scale_e = 138468.0;  // the brightest sunlit rock at half the range (rig_design.h)
+  rig.output_bits = 12;
+  return rig;
+}
+
 void RigParams::validate() const
 {
   const EmitterParams& e = emitter;
@@ -338,6 +363,30 @@ SimRadiometry simulatorRadiometry(const SceneAnalysis& a, const RigParams& rig)
   r.read_noise_dn = a.inputs.read_noise_e * r.gain_dn_per_electron;
   r.beam_sigma_rad = rig.beam_sigma_rad;
   r.wavelength_nm = rig.emitter.wavelength_m * 1e9;
+  return r;
+}
+
+SimRadiometry studySimRadiometry()
+{
+  SimRadiometry r;
+  r.exposure = 1.0;
+  r.dot_to_sun_ratio = LightingParams::sceneDotToSunRatio(RadiometryModel::kStudyAsStated);
+  r.gain_dn_per_electron = 0.01;
+  r.read_noise_dn = 1.0;
+  r.beam_sigma_rad = 0.002;
+  r.wavelength_nm = 520.0;
+  r.full_scale_e = 25500.0;
+  return r;
+}
+
+const SimRadiometry& recommendedSimRadiometry()
+{
+  static const SimRadiometry r = []
+  {
+    RigParams rig = RigParams::recommendedDaylight();
+    rig.strobe = false;  // the projector lights every frame unless the driver strobes
+    return simulatorRadiometry(analyseScene(SceneInputs()), rig);
+  }();
   return r;
 }
 

@@ -327,3 +327,22 @@ TEST(RigDesign, SimulatorRadiometryIsTheRigsElectronsInDn)
   EXPECT_EQ(p.lighting.dot_to_sun_ratio, r.dot_to_sun_ratio);
   EXPECT_EQ(p.sensor.gain_dn_per_electron, r.gain_dn_per_electron);
 }
+
+TEST(RigDesign, ConfigFilesHoldTheRecommendedAndTheStudyRigs)
+{
+  const SceneAnalysis a = study();
+  const RigParams file = loadRig(a, std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_daylight.yaml");
+  const RigParams code = RigParams::recommendedDaylight();
+  EXPECT_EQ(rigToYaml(file), rigToYaml(code)) << "config/rig_daylight.yaml and RigParams::recommendedDaylight() differ";
+  // The recommended rig is what the design calculator recommends with config/rig_design.yaml.
+  const DesignResult r = designRig(loadDesignInputs(std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_design.yaml"));
+  ASSERT_GE(r.recommended, 0);
+  RigParams best = r.rigs[r.recommended].rig;
+  best.name = code.name;
+  EXPECT_EQ(rigToYaml(best), rigToYaml(code));
+  // The study's LED file: the LED as the scene analysis computes it.
+  const RigParams led = loadRig(a, std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_study_led.yaml");
+  EXPECT_NEAR(led.emitter.cw_optical_power_w, a.led_optical_power_w, 1e-5);
+  EXPECT_NEAR(led.electrical_budget_w, a.led_power_study_w, 1e-4);
+  EXPECT_FALSE(led.pulsed);
+}

@@ -98,6 +98,10 @@ struct RigParams
 
   // The study's rig: its LED on continuously, 0.1 s exposure, no filter.
   static RigParams studyDesign(const SceneAnalysis& analysis);
+  // The rig the design calculator recommends (config/rig_daylight.yaml, the
+  // same values; docs/daylight.md): a pulsed 1 W 520 nm laser diode, 1.5
+  // mrad beams, 2 ms exposures, no filter, strobed.
+  static RigParams recommendedDaylight();
   // Throws std::invalid_argument naming the field.
   void validate() const;
 };
@@ -201,6 +205,14 @@ struct SimRadiometry
   double full_scale_e = 0.0;  // electrons at 255 DN
 };
 SimRadiometry simulatorRadiometry(const SceneAnalysis& analysis, const RigParams& rig);
+// The study's design as stated on the simulator's historical camera (100
+// e-/DN, 1 DN read noise, exposure 1, the 2 mrad beam, dot/sun 3.66): what
+// `radiometry: study` renders, the frames of every figure measured before
+// the corrected radiometry.
+SimRadiometry studySimRadiometry();
+// The recommended rig (RigParams::recommendedDaylight()) lighting every
+// frame (not strobed), on the study's scene; computed once.
+const SimRadiometry& recommendedSimRadiometry();
 // Sets those fields of the simulator's params.
 void applySimRadiometry(const SimRadiometry& radiometry, SimulatorParams* params);
 
