@@ -111,7 +111,7 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
     applySimRadiometry(simulatorRadiometry(a, rig), &p);
   }
   else
-    p.lighting.dot_to_sun_ratio = LightingParams::sceneDotToSunRatio(RadiometryModel::kCorrected);
+    applySimRadiometry(studySimRadiometry(), &p);  // the historical camera; --ratio sets the dots
   if (o.ratio >= 0.0)
     p.lighting.dot_to_sun_ratio = o.ratio;
   p.rock.fine_texture_period_m = o.texture_period;  // +-25 % (RockParams' default amplitude)

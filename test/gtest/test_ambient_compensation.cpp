@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "structured_light_stabilizer/ambient_compensation.h"
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 
 using namespace structured_light_stabilizer;
@@ -25,6 +26,9 @@ constexpr double kFramePeriod = 1.0 / 30.0;
 SimulatorParams movingRig(uint32_t seed, double speed_scale)
 {
   SimulatorParams p;
+  // The simulator's historical camera (100 e-/DN): its finer DN scale shows
+  // the texture that moves; what is measured here is the motion, not the light.
+  applySimRadiometry(studySimRadiometry(), &p);
   p.rock.seed = seed;
   p.noise_seed = seed + 100;
   p.lighting.sun_level = 1.0;

@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/strobe_demux.h"
 
@@ -27,6 +28,7 @@ struct Stream
 Stream strobedStream(int n, int on_parity, int skip, double dot_to_sun)
 {
   SimulatorParams p;
+  applySimRadiometry(studySimRadiometry(), &p);  // the historical camera; the ratio below
   p.rock.seed = 21;
   p.lighting.sun_level = 1.0;
   p.lighting.dot_to_sun_ratio = dot_to_sun;
