@@ -112,6 +112,7 @@ private:
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::CameraPublisher pub_camera_;
+  image_transport::Publisher pub_ambient_;  // projector-off frames of a strobed source
   std::unique_ptr<camera_info_manager::CameraInfoManager> camera_info_manager_;
   std::unique_ptr<FrameSource> source_;
 
@@ -159,6 +160,7 @@ void CameraDriverNodelet::onInit()
   ros::NodeHandle& nh = getNodeHandle();
   it_.reset(new image_transport::ImageTransport(nh));
   pub_camera_ = it_->advertiseCamera("camera/image_raw", 2);
+  pub_ambient_ = it_->advertise("camera/image_ambient", 2);
   camera_info_manager_.reset(new camera_info_manager::CameraInfoManager(ros::NodeHandle(nh, "camera"), camera_name_));
   if (!camera_info_url_.empty())
     loadCameraInfoUrl();
@@ -250,7 +252,7 @@ SourceContext CameraDriverNodelet::sourceContext()
   ctx.warn = [this](const std::string& m) { NODELET_WARN("CameraDriver: %s", m.c_str()); };
   ctx.error = [this](const std::string& m) { NODELET_ERROR("CameraDriver: %s", m.c_str()); };
   ctx.stamp = [this](ros::Time* stamp) { return acquisitionStamp(stamp); };
-  ctx.image_subscribers = [this] { return pub_camera_.getNumSubscribers(); };
+  ctx.image_subscribers = [this] { return pub_camera_.getNumSubscribers() + pub_ambient_.getNumSubscribers(); };
   ctx.camera_info_url = camera_info_url_;
   ctx.window = window_;
   if (calibrated_from_url_)
@@ -393,15 +395,20 @@ bool CameraDriverNodelet::publishFrame(const std_msgs::Header& header, const Fra
   if (!applyWindow(frame.image, frame.encoding, window_, &image, why))
     return false;
   sensor_msgs::CameraInfoPtr info;
-  if (const sensor_msgs::CameraInfo* own = source_->cameraInfo())
+  if (frame.ambient)
+    pub_ambient_.publish(cv_bridge::CvImage(header, frame.encoding, image).toImageMsg());
+  else if (const sensor_msgs::CameraInfo* own = source_->cameraInfo())
   {
     info = boost::make_shared<sensor_msgs::CameraInfo>(*own);
     info->header = header;
   }
   else
     info = infoFor(header, frame.image);
-  setWindow(info.get());
-  pub_camera_.publish(cv_bridge::CvImage(header, frame.encoding, image).toImageMsg(), info);
+  if (info)
+  {
+    setWindow(info.get());
+    pub_camera_.publish(cv_bridge::CvImage(header, frame.encoding, image).toImageMsg(), info);
+  }
   frequency_->tick();
   std::lock_guard<std::mutex> lock(status_mutex_);
   ++frames_published_;

@@ -69,6 +69,10 @@ struct Frame
   std::string encoding = "bgr8";  // sensor_msgs/image_encodings name of `image` (full sensor, before the window)
   ros::Time stamp;                // acquisition time (SourceContext::stamp)
   double processing_ms = 0.0;     // render or acquisition time, for diagnostics
+  // A projector-off frame of a strobed source: published on
+  // camera/image_ambient (same camera_info, its own stamp) instead of
+  // camera/image_raw (docs/daylight.md).
+  bool ambient = false;
 };
 
 enum class GrabStatus

@@ -18,6 +18,7 @@
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/PoseDelta.h"
 #include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "conversions.h"
 #include "frame_source.h"
@@ -29,6 +30,9 @@ namespace structured_light_stabilizer
 
 namespace
 {
+
+// ~radiometry's default: the study's brightness as stated.
+constexpr const char* kDefaultRadiometry = "study";
 
 bool radiometryModel(const std::string& name, RadiometryModel* model)
 {
@@ -61,6 +65,9 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
       {"rock_tilt_x", &c->rock.tilt_x_rad},
       {"rock_tilt_y", &c->rock.tilt_y_rad},
       {"texture_scale", &c->rock.texture_scale_m},
+      {"fine_texture_period", &c->rock.fine_texture_period_m},
+      {"fine_texture_amplitude", &c->rock.fine_texture_amplitude},
+      {"nir_to_red", &c->rock.nir_to_red_ratio},
       {"albedo_min", &c->rock.albedo_min},
       {"albedo_max", &c->rock.albedo_max},
       {"rock_step_height", &c->rock.step_height_m},
@@ -105,12 +112,12 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
 
 // ---- dynamic_reconfigure <-> the simulator's live settings, one function each way.
 
-void liveSettingsFromConfig(const CameraDriverConfig& config, RadiometryModel model, SimulatorParams* c)
+// model_ratio: the dot/sun ratio of the chosen radiometry (the rig's when
+// one is loaded), used when the config's is negative.
+void liveSettingsFromConfig(const CameraDriverConfig& config, double model_ratio, SimulatorParams* c)
 {
   c->lighting.sun_level = config.sun_level;
-  // Negative: the ratio of the scene analysis for the chosen radiometry.
-  c->lighting.dot_to_sun_ratio =
-      config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : LightingParams::sceneDotToSunRatio(model);
+  c->lighting.dot_to_sun_ratio = config.dot_to_sun_ratio >= 0.0 ? config.dot_to_sun_ratio : model_ratio;
   c->lighting.exposure = config.exposure;
   c->projector.power_scale = config.power_scale;
   c->motion.jitter_translation_m = config.jitter_translation;
@@ -144,6 +151,7 @@ public:
   {
     SimulatorParams c;
     readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
+    strobe_ = ctx_.pnh.param("strobe", false);
     const std::string ratio_source = readLighting(&c);
     duration_s_ = ctx_.pnh.param("duration", 0.0);
     readDisturbanceParams(ctx_.pnh, ctx_.error, &c.motion);  // the closed loop's (sim_closed_loop.h)
@@ -159,6 +167,10 @@ public:
       ctx_.info(
           "~lazy: frames are rendered only while someone subscribes to the image or the ground truth "
           "(simulated time runs on regardless)");
+    if (strobe_)
+      ctx_.info(
+          "~strobe: every second frame has the projector off and goes to camera/image_ambient (its own stamp, "
+          "no ground truth); the projector-on frames go to camera/image_raw");
     writeProjectorCalibration();
     closed_loop_.setUp(ctx_);  // without a usable arm the camera just ignores commands
     return true;
@@ -192,10 +204,14 @@ public:
         pub_gt_pose_.getNumSubscribers() == 0 && pub_gt_spots_.getNumSubscribers() == 0)
       return {GrabStatus::kSkip, ""};
     rendered_by_ = simulator();
+    // Strobed: odd frames are the ambient ones (index_ counts this frame).
+    FrameRequest request;
+    request.projector_on = !(strobe_ && index_ % 2 == 0);
     const auto t0 = std::chrono::steady_clock::now();
     rendered_ = rendered_by_->render(t, request);
     frame->processing_ms = millisecondsSince(t0);
     frame->image = rendered_.image;
+    frame->ambient = last_ambient_ = !request.projector_on;
     return {GrabStatus::kFrame, ""};
   }
 
@@ -204,6 +220,9 @@ public:
 
 private:
   std::string readLighting(SimulatorParams* c);
+  SimRadiometry rigRadiometry();
+  std::string applyRadiometry(const SimRadiometry& r, SimulatorParams* c);
+  double modelRatio(RadiometryModel model) const;
   void useUrlCalibration(SimulatorParams* c) const;
   bool build(const SimulatorParams& c, const std::string& ratio_source);
   void writeProjectorCalibration() const;
@@ -223,6 +242,13 @@ private:
   mutable std::mutex mutex_;
   std::shared_ptr<const Simulator> simulator_;  // under mutex_; replaced, never modified
   std::string radiometry_ = "study";            // reconfigure() only (dynamic_reconfigure's thread)
+  // Daylight (docs/daylight.md): ~strobe publishes every second frame with
+  // the projector off on camera/image_ambient; ~rig sets the corrected
+  // radiometry from a rig's YAML. Set in setUp(), read-only after.
+  bool strobe_ = false;
+  double rig_ratio_ = 0.0;     // the corrected radiometry's rig's dot/sun ratio (live radiometry switches)
+  std::string rig_note_;       // the rig, for the start-up line
+  bool last_ambient_ = false;  // worker thread: the last frame grabbed was a projector-off frame
 
   // Worker thread: simulated time, the last frame and the simulator that rendered it.
   uint64_t index_ = 0, index_base_ = 0;
@@ -237,19 +263,78 @@ private:
 // from, for the start-up line.
 std::string SimSource::readLighting(SimulatorParams* c)
 {
-  radiometry_ = ctx_.pnh.param<std::string>("radiometry", "study");
+  radiometry_ = ctx_.pnh.param<std::string>("radiometry", kDefaultRadiometry);
   RadiometryModel model = RadiometryModel::kStudyAsStated;
   if (!radiometryModel(radiometry_, &model))
   {
-    ctx_.error(stringf("unknown ~radiometry '%s' (study | corrected); using 'study'", radiometry_.c_str()));
-    radiometry_ = "study";
-    model = RadiometryModel::kStudyAsStated;
+    ctx_.error(
+        stringf("unknown ~radiometry '%s' (study | corrected); using '%s'", radiometry_.c_str(), kDefaultRadiometry));
+    radiometry_ = kDefaultRadiometry;
+    radiometryModel(radiometry_, &model);
     ctx_.pnh.setParam("radiometry", radiometry_);  // dynamic_reconfigure starts from it
   }
+  std::string note = ", " + radiometry_ + " radiometry";
+  const SimRadiometry rig = rigRadiometry();  // also for a live switch to 'corrected'
+  if (model == RadiometryModel::kCorrected)
+    note += applyRadiometry(rig, c);
+  else
+    applyRadiometry(studySimRadiometry(), c);
   double ratio = -1.0;
   ParamReader(ctx_.pnh, ctx_.error).number("dot_to_sun_ratio", &ratio);
-  c->lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : LightingParams::sceneDotToSunRatio(model);
-  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : ", " + radiometry_ + " radiometry";
+  c->lighting.dot_to_sun_ratio = ratio >= 0.0 ? ratio : modelRatio(model);
+  return ratio >= 0.0 ? " from ~dot_to_sun_ratio" : note;
+}
+
+double SimSource::modelRatio(RadiometryModel model) const
+{
+  return model == RadiometryModel::kCorrected ? rig_ratio_ : studySimRadiometry().dot_to_sun_ratio;
+}
+
+// The corrected radiometry's rig (radiometry.h): ~rig's file, else the
+// recommended one; pulsed for the frames ~strobe lights. Sets rig_ratio_
+// and rig_note_; a bad file is said and the recommended rig used.
+SimRadiometry SimSource::rigRadiometry()
+{
+  const std::string path = ctx_.pnh.param<std::string>("rig", "");
+  const SceneAnalysis analysis = analyseScene(SceneInputs());
+  RigParams rig = RigParams::recommendedDaylight();
+  try
+  {
+    if (!path.empty())
+      rig = loadRig(analysis, path);
+  }
+  catch (const std::exception& e)
+  {
+    ctx_.error(stringf("~rig: %s; using the recommended daylight rig", e.what()));
+  }
+  rig.strobe = strobe_;  // the projector fires on the frames this driver lights
+  const SimRadiometry r = simulatorRadiometry(analysis, rig);
+  rig_ratio_ = r.dot_to_sun_ratio;
+  rig_note_ = stringf(", rig '%s' (%s, %.2f ms, %.0f e-/DN)", rig.name.c_str(),
+                      path.empty() ? "built in" : path.c_str(), rig.exposure_s * 1e3, 1.0 / r.gain_dn_per_electron);
+  return r;
+}
+
+// The radiometry's exposure, gain, read noise, beam and wavelength; the
+// parameters given explicitly keep their values (read before), the others
+// are written back so that dynamic_reconfigure starts from them.
+std::string SimSource::applyRadiometry(const SimRadiometry& r, SimulatorParams* c)
+{
+  const SimulatorParams explicit_values = *c;
+  applySimRadiometry(r, c);
+  if (ctx_.pnh.hasParam("exposure"))
+    c->lighting.exposure = explicit_values.lighting.exposure;
+  else
+    ctx_.pnh.setParam("exposure", c->lighting.exposure);
+  if (ctx_.pnh.hasParam("read_noise"))
+    c->sensor.read_noise_dn = explicit_values.sensor.read_noise_dn;
+  else
+    ctx_.pnh.setParam("read_noise", c->sensor.read_noise_dn);
+  if (ctx_.pnh.hasParam("gain"))
+    c->sensor.gain_dn_per_electron = explicit_values.sensor.gain_dn_per_electron;
+  if (ctx_.pnh.hasParam("beam_sigma"))
+    c->projector.beam_sigma_rad = explicit_values.projector.beam_sigma_rad;
+  return rig_note_;
 }
 
 // A calibration file for the simulated camera replaces its intrinsics (and
@@ -311,6 +396,8 @@ void SimSource::writeProjectorCalibration() const
 
 void SimSource::published(const std_msgs::Header& header)
 {
+  if (last_ambient_)
+    return;  // the ground truth goes with the frames that show the dots
   const ProjectorCalibration& projector = rendered_by_->projector();
   const SimFrame& frame = rendered_;
   std::vector<float> intensity(frame.peak_dn.begin(), frame.peak_dn.end());
@@ -368,7 +455,7 @@ void SimSource::reconfigure(CameraDriverConfig& config)
   }
   radiometry_ = config.radiometry;
   SimulatorParams c = current->params();
-  liveSettingsFromConfig(config, model, &c);
+  liveSettingsFromConfig(config, modelRatio(model), &c);
   try
   {
     auto updated = std::make_shared<Simulator>(*current);

@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "brightness.h"
 #include "clutter.h"
 #include "frame_geometry.h"
 #include "noise.h"
@@ -174,22 +175,22 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
 {
   const Impl& im = *impl_;
   const SensorParams& sc = params_.sensor;
-  const LightingParams& light = params_.lighting;
   SimFrame frame;
   frame.t = t;
   frame.delta = request.arm_correction * motion(t);
   const sim::FrameGeometry g(im.T_rock_cam0 * frame.delta.inverse());
-  const double sun = light.sun_level * LightingParams::kSunFullScaleDn * light.exposure;
+  const double sun = sim::sunDn(params_);
 
   // Clutter patches and dots as splats, in the order they apply to a pixel.
   std::vector<sim::Splat> splats;
+  std::vector<sim::DotAlbedo> dot_albedo;
   if (sun > 0.0)
     sim::addClutterSplats(im.clutter, im.rock, g, sc, sun, &splats);
   const size_t clutter_splats = splats.size();
-  sim::renderDots(params_, projector_, im.rock, g, &frame, &splats);
+  sim::renderDots(params_, projector_, im.rock, g, &frame, &splats, &dot_albedo);
   if (!request.projector_on)
     splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
-  const sim::SplatRows splat_rows(std::move(splats), sc.camera.height);
+  const sim::SplatRows splat_rows(std::move(splats), std::move(dot_albedo), im.rock, sc.camera.height);
 
   const float* rock_samples =
       sun > 0.0 ? sim::renderRockSamples(im.rock, im.sampling, sc.camera, g, sun, sc.natural_vignetting) : nullptr;

@@ -54,6 +54,13 @@ void checkRock(const RockParams& rock, std::ostringstream& why)
     why << "albedo range [" << rock.albedo_min << ", " << rock.albedo_max << "] must satisfy 0 <= min <= max <= 1; ";
   if (!(rock.texture_scale_m >= 0.002 && rock.texture_scale_m <= 1.0))
     why << "texture_scale_m " << rock.texture_scale_m << " is outside [0.002, 1]; ";
+  if (!(rock.fine_texture_period_m == 0.0 ||
+        (rock.fine_texture_period_m >= 0.004 && rock.fine_texture_period_m <= 1.0)))
+    why << "fine_texture_period_m " << rock.fine_texture_period_m << " must be 0 (off) or within [0.004, 1]; ";
+  if (!(rock.fine_texture_amplitude >= 0.0 && rock.fine_texture_amplitude <= 0.9))
+    why << "fine_texture_amplitude " << rock.fine_texture_amplitude << " is outside [0, 0.9]; ";
+  if (!(rock.nir_to_red_ratio > 0.0 && rock.nir_to_red_ratio <= 5.0))
+    why << "nir_to_red_ratio " << rock.nir_to_red_ratio << " is outside (0, 5]; ";
   if (!(std::abs(rock.tilt_x_rad) < 1.2 && std::abs(rock.tilt_y_rad) < 1.2))
     why << "rock tilt must stay below 1.2 rad; ";
 }

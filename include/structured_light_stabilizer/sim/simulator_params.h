@@ -61,8 +61,18 @@ struct RockParams
   double relief_m = 0.15;    // peak-to-peak relief of the height field (0 = flat board)
   double albedo_min = 0.05;  // reddish textured albedo range (docs/study.md §1.1.3)
   double albedo_max = 0.45;
-  double texture_scale_m = 0.02;  // size of the finest albedo features
-  double tilt_x_rad = 0.0;        // orientation of the mean plane (0 = facing the camera)
+  double texture_scale_m = 0.02;  // size of the finest albedo features (>= 0.1: a weakly textured rock)
+  // Optional fine texture (docs/simulator.md, "Rock"): a multiplicative
+  // albedo modulation of this period (m; 0 = off; real rock: 0.01-0.03) and
+  // relative amplitude (0.25 = albedo within about +-25 %), mostly brightness
+  // with a little hue (R against B). Resolving it needs a finer vertex grid
+  // (period / 8, >= 2 mm): more memory and build time when on.
+  double fine_texture_period_m = 0.0;
+  double fine_texture_amplitude = 0.25;
+  // Reflectance at 850 nm over the red reflectance (an NIR projector's dots):
+  // iron-bearing rock reflects more in the near infrared than in the red.
+  double nir_to_red_ratio = 1.25;
+  double tilt_x_rad = 0.0;  // orientation of the mean plane (0 = facing the camera)
   double tilt_y_rad = 0.0;
   // Optional straight step along y at x = step_x_m: the side x > step_x_m lies
   // step_height_m farther from the camera (negative: nearer). For occlusion

@@ -1,0 +1,98 @@
+// The ambient image of a strobed pair, aligned to the on-frame's time
+// (docs/daylight.md#strobing). A camera with a strobe output takes the
+// projector-on frames between projector-off ("ambient") frames; the rig
+// moves between them, so the ambient frame nearest in time does not sit
+// where the on-frame's rock does. compensateAmbient() takes two ambient
+// frames (before and after the on-frame, or two before it) and gives the
+// rock's image at the on-frame's time: the image motion between the two
+// (a homography, estimated from the rock's texture or given, e.g. from
+// PoseDelta's motion and the rock's depth) raised to the fraction of the
+// interval where the on-frame lies, each frame warped there and the two
+// blended. The SpotDetector subtracts it from the on-frame (~strobe).
+//
+// Contract: images of one size and type, CV_8UC1/3/4 or CV_16UC1 (Bayer
+// mosaics: set AmbientCompensationParams::layout; each colour phase is
+// warped on its own sites). Stamps in seconds (any epoch, the same for all).
+// Never throws on bad input: valid = false and status says why. Pure
+// function, any thread.
+#pragma once
+
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace structured_light_stabilizer
+{
+
+struct AmbientFrame
+{
+  cv::Mat image;  // projector off
+  double stamp_s = 0.0;
+};
+
+enum class AmbientLayout
+{
+  kInterleaved,  // mono or packed colour
+  kBayerRggb,
+  kBayerBggr,
+  kBayerGbrg,
+  kBayerGrbg,
+};
+
+enum class AmbientMotion
+{
+  kNearest,     // the nearer ambient frame as it is
+  kBlend,       // the two blended by time, no warping (no motion model)
+  kHomography,  // warped along the image motion between the two, then blended
+};
+
+struct AmbientCompensationParams
+{
+  AmbientMotion motion = AmbientMotion::kHomography;
+  AmbientLayout layout = AmbientLayout::kInterleaved;
+  // Ambient frames farther than this from the on-frame are not used (s).
+  double max_gap_s = 0.25;
+  // When both frames lie on one side of the on-frame, extrapolate the motion
+  // up to this many intervals beyond the nearer one (0: use it as it is).
+  double max_extrapolation = 1.0;
+  // Motion estimation: a grid of grid x grid points tracked by pyramidal
+  // Lucas-Kanade from one frame to the other, a homography fitted to them
+  // (RANSAC, threshold in px). Fewer than min_points tracked: blend instead.
+  int grid = 24;
+  int window_px = 21;
+  int pyramid_levels = 3;
+  double ransac_threshold_px = 0.5;
+  int min_points = 40;
+};
+
+struct AmbientEstimate
+{
+  cv::Mat image;  // the inputs' size and type, aligned to the on-frame; empty when !valid
+  bool valid = false;
+  std::string status;  // what was done, or why nothing could be
+  // Noise variance of `image` relative to one ambient frame's: (1-w)^2 + w^2
+  // for a blend at fraction w (bilinear warping lowers it further). The
+  // difference on - image has var_on + noise_variance_scale * var_ambient.
+  double noise_variance_scale = 1.0;
+  double fraction = 0.0;                       // w: where the on-frame lies, 0 at frame a, 1 at frame b
+  cv::Matx33d motion_ab = cv::Matx33d::eye();  // homography a -> b (full-resolution pixels)
+  int points_used = 0;                         // inliers of the homography fit
+  double residual_px = 0.0;                    // their RMS residual
+};
+
+AmbientEstimate compensateAmbient(double on_stamp_s, const AmbientFrame& a, const AmbientFrame& b,
+                                  const AmbientCompensationParams& params = AmbientCompensationParams(),
+                                  const cv::Matx33d* motion_hint = nullptr);
+
+// H^w for a homography near the identity (matrix logarithm and exponential,
+// normalised to det 1): the motion over a fraction w of the interval.
+cv::Matx33d homographyPower(const cv::Matx33d& H, double w);
+
+// The homography from the rig's motion over the interval and the rock's
+// mean plane (n^T X = d in the first frame's camera frame, n unit, d > 0):
+// x_b ~ K (R + t n^T / d) K^-1 x_a, with X_b = R X_a + t (PoseDelta's
+// convention). For a motion hint from PoseDelta's estimate.
+cv::Matx33d planeHomography(const cv::Matx33d& K, const cv::Matx33d& R, const cv::Vec3d& t, const cv::Vec3d& n,
+                            double d);
+
+}  // namespace structured_light_stabilizer

@@ -1,0 +1,265 @@
+// Ambient image at the on-frame's time (ambient_compensation.h,
+// docs/daylight.md#strobing): pick the frames, estimate the image motion
+// between them from the rock's texture, warp each to the on-frame's time
+// along a fraction of that motion, blend.
+#include "structured_light_stabilizer/ambient_compensation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <vector>
+
+#include <Eigen/Core>
+#include <unsupported/Eigen/MatrixFunctions>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+namespace structured_light_stabilizer
+{
+
+namespace
+{
+
+std::string fmt(const char* format, double a, double b = 0.0)
+{
+  char buf[160];
+  std::snprintf(buf, sizeof(buf), format, a, b);
+  return buf;
+}
+
+bool bayer(AmbientLayout layout)
+{
+  return layout != AmbientLayout::kInterleaved;
+}
+
+// Why the pair cannot be used; empty when it can.
+std::string checkImages(const AmbientFrame& a, const AmbientFrame& b, const AmbientCompensationParams& p)
+{
+  for (const AmbientFrame* f : {&a, &b})
+  {
+    if (f->image.empty())
+      continue;
+    const int t = f->image.type();
+    if (t != CV_8UC1 && t != CV_8UC3 && t != CV_8UC4 && t != CV_16UC1)
+      return "ambient images must be CV_8UC1/3/4 or CV_16UC1";
+    if (bayer(p.layout) && (f->image.channels() != 1 || f->image.cols % 2 || f->image.rows % 2))
+      return "a Bayer mosaic must be one channel of even width and height";
+    if (!std::isfinite(f->stamp_s))
+      return "an ambient stamp is not finite";
+  }
+  if (!a.image.empty() && !b.image.empty() && (a.image.size() != b.image.size() || a.image.type() != b.image.type()))
+    return "the two ambient images differ in size or type";
+  return "";
+}
+
+// 8-bit grey image for tracking: a Bayer mosaic binned 2 x 2 (its luma at
+// half resolution, *scale = 0.5), colour converted, 16-bit scaled.
+cv::Mat trackingImage(const cv::Mat& img, AmbientLayout layout, double* scale)
+{
+  cv::Mat grey;
+  *scale = 1.0;
+  if (bayer(layout))
+  {
+    cv::Mat f;
+    img.convertTo(f, CV_32F);
+    cv::resize(f, grey, cv::Size(img.cols / 2, img.rows / 2), 0, 0, cv::INTER_AREA);
+    *scale = 0.5;
+  }
+  else if (img.channels() == 3)
+    cv::cvtColor(img, grey, cv::COLOR_BGR2GRAY);
+  else if (img.channels() == 4)
+    cv::cvtColor(img, grey, cv::COLOR_BGRA2GRAY);
+  else
+    grey = img;
+  if (grey.depth() == CV_8U)
+    return grey;
+  double hi = 0.0;
+  cv::minMaxLoc(grey, nullptr, &hi);
+  cv::Mat out;
+  grey.convertTo(out, CV_8U, hi > 0.0 ? 255.0 / hi : 1.0);
+  return out;
+}
+
+// Homography a -> b in full-resolution pixels from the rock's texture.
+bool estimateMotion(const cv::Mat& a, const cv::Mat& b, const AmbientCompensationParams& p, AmbientEstimate* out)
+{
+  double scale = 1.0;
+  const cv::Mat ga = trackingImage(a, p.layout, &scale), gb = trackingImage(b, p.layout, &scale);
+  std::vector<cv::Point2f> pa, pb;
+  const int margin = p.window_px;
+  for (int i = 0; i < p.grid; ++i)
+    for (int j = 0; j < p.grid; ++j)
+      pa.emplace_back(margin + (ga.cols - 2.0f * margin) * (j + 0.5f) / p.grid,
+                      margin + (ga.rows - 2.0f * margin) * (i + 0.5f) / p.grid);
+  std::vector<uchar> status;
+  std::vector<float> err;
+  cv::calcOpticalFlowPyrLK(ga, gb, pa, pb, status, err, cv::Size(p.window_px, p.window_px), p.pyramid_levels,
+                           cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 1e-3), 0, 1e-3);
+  std::vector<cv::Point2f> sa, sb;
+  for (size_t k = 0; k < pa.size(); ++k)
+    if (status[k])
+    {
+      sa.push_back(pa[k] / scale);
+      sb.push_back(pb[k] / scale);
+    }
+  if (static_cast<int>(sa.size()) < p.min_points)
+    return false;
+  std::vector<uchar> inliers;
+  const cv::Mat H = cv::findHomography(sa, sb, cv::RANSAC, p.ransac_threshold_px, inliers);
+  if (H.empty())
+    return false;
+  out->motion_ab = cv::Matx33d(H);
+  double sum2 = 0.0;
+  out->points_used = 0;
+  for (size_t k = 0; k < sa.size(); ++k)
+    if (inliers[k])
+    {
+      const cv::Vec3d q = out->motion_ab * cv::Vec3d(sa[k].x, sa[k].y, 1.0);
+      sum2 += std::pow(q[0] / q[2] - sb[k].x, 2) + std::pow(q[1] / q[2] - sb[k].y, 2);
+      ++out->points_used;
+    }
+  out->residual_px = out->points_used > 0 ? std::sqrt(sum2 / out->points_used) : 0.0;
+  return out->points_used >= p.min_points;
+}
+
+// The image warped so that what was at x sits at H x (bilinear). A Bayer
+// mosaic: each phase on its own sites, M_p = T_p^-1 H T_p with T_p the
+// phase's half-resolution grid.
+cv::Mat warp(const cv::Mat& img, const cv::Matx33d& H, AmbientLayout layout)
+{
+  cv::Mat out;
+  if (!bayer(layout))
+  {
+    cv::warpPerspective(img, out, cv::Mat(H), img.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    return out;
+  }
+  out.create(img.size(), img.type());
+  const cv::Size half(img.cols / 2, img.rows / 2);
+  for (int oy = 0; oy < 2; ++oy)
+    for (int ox = 0; ox < 2; ++ox)
+    {
+      cv::Mat plane(half, img.type()), warped;
+      for (int r = 0; r < half.height; ++r)
+        for (int c = 0; c < half.width; ++c)
+        {
+          if (img.depth() == CV_8U)
+            plane.at<uchar>(r, c) = img.at<uchar>(2 * r + oy, 2 * c + ox);
+          else
+            plane.at<uint16_t>(r, c) = img.at<uint16_t>(2 * r + oy, 2 * c + ox);
+        }
+      const cv::Matx33d T(2, 0, ox, 0, 2, oy, 0, 0, 1);
+      cv::warpPerspective(plane, warped, cv::Mat(T.inv() * H * T), half, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+      for (int r = 0; r < half.height; ++r)
+        for (int c = 0; c < half.width; ++c)
+        {
+          if (img.depth() == CV_8U)
+            out.at<uchar>(2 * r + oy, 2 * c + ox) = warped.at<uchar>(r, c);
+          else
+            out.at<uint16_t>(2 * r + oy, 2 * c + ox) = warped.at<uint16_t>(r, c);
+        }
+    }
+  return out;
+}
+
+// Orders the usable frames: *first is the earlier one. False when neither
+// is usable; *only set when exactly one is.
+bool usableFrames(double t, const AmbientFrame& a, const AmbientFrame& b, const AmbientCompensationParams& p,
+                  const AmbientFrame** first, const AmbientFrame** second, std::string* why)
+{
+  auto usable = [&](const AmbientFrame& f) { return !f.image.empty() && std::fabs(f.stamp_s - t) <= p.max_gap_s; };
+  const bool ua = usable(a), ub = usable(b);
+  if (!ua && !ub)
+  {
+    *why = fmt("no ambient frame within %.3f s of the on-frame", p.max_gap_s);
+    return false;
+  }
+  *first = ua ? &a : &b;
+  *second = ua && ub ? &b : nullptr;
+  if (*second && (*second)->stamp_s < (*first)->stamp_s)
+    std::swap(*first, *second);
+  if (*second && (*second)->stamp_s == (*first)->stamp_s)
+    *second = nullptr;
+  return true;
+}
+
+}  // namespace
+
+cv::Matx33d homographyPower(const cv::Matx33d& H, double w)
+{
+  Eigen::Matrix3d M;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      M(r, c) = H(r, c);
+  const double det = M.determinant();
+  if (!(det > 0.0))
+    return cv::Matx33d::eye();
+  M /= std::cbrt(det);
+  const Eigen::Matrix3d P = (w * M.log()).exp();
+  cv::Matx33d out;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c)
+      out(r, c) = P(r, c);
+  return out;
+}
+
+cv::Matx33d planeHomography(const cv::Matx33d& K, const cv::Matx33d& R, const cv::Vec3d& t, const cv::Vec3d& n,
+                            double d)
+{
+  const cv::Matx33d tn(t[0] * n[0], t[0] * n[1], t[0] * n[2], t[1] * n[0], t[1] * n[1], t[1] * n[2], t[2] * n[0],
+                       t[2] * n[1], t[2] * n[2]);
+  return K * (R + tn * (1.0 / d)) * K.inv();
+}
+
+AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const AmbientFrame& b,
+                                  const AmbientCompensationParams& p, const cv::Matx33d* hint)
+{
+  AmbientEstimate out;
+  const AmbientFrame *first = nullptr, *second = nullptr;
+  out.status = std::isfinite(t) ? checkImages(a, b, p) : "the on-frame's stamp is not finite";
+  if (!out.status.empty() || !usableFrames(t, a, b, p, &first, &second, &out.status))
+    return out;
+  out.valid = true;
+  if (!second || p.motion == AmbientMotion::kNearest)
+  {
+    const AmbientFrame* near =
+        !second || std::fabs(first->stamp_s - t) <= std::fabs(second->stamp_s - t) ? first : second;
+    out.image = near->image;
+    out.fraction = near == first ? 0.0 : 1.0;
+    out.status = fmt("nearest ambient frame, %.1f ms from the on-frame", 1e3 * std::fabs(near->stamp_s - t));
+    return out;
+  }
+  double w = (t - first->stamp_s) / (second->stamp_s - first->stamp_s);
+  w = std::min(std::max(w, -p.max_extrapolation), 1.0 + p.max_extrapolation);
+  out.fraction = w;
+  bool have_motion = false;
+  if (p.motion == AmbientMotion::kHomography)
+  {
+    if (hint)
+    {
+      out.motion_ab = *hint;
+      have_motion = true;
+    }
+    else
+      have_motion = estimateMotion(first->image, second->image, p, &out);
+  }
+  // Weights: a blend inside the interval; outside it the nearer frame alone.
+  const double wb = std::min(std::max(w, 0.0), 1.0);
+  const cv::Mat ia = have_motion ? warp(first->image, homographyPower(out.motion_ab, w), p.layout) : first->image;
+  const cv::Mat ib =
+      have_motion ? warp(second->image, homographyPower(out.motion_ab, w - 1.0), p.layout) : second->image;
+  cv::addWeighted(ia, 1.0 - wb, ib, wb, 0.0, out.image);
+  out.noise_variance_scale = (1.0 - wb) * (1.0 - wb) + wb * wb;
+  if (have_motion && hint)
+    out.status = fmt("warped along the given motion at fraction %.2f", w);
+  else if (have_motion)
+    out.status = fmt("warped along the motion between the ambient frames at fraction %.2f (%.0f points", w,
+                     static_cast<double>(out.points_used)) +
+                 fmt(", %.3f px RMS)", out.residual_px);
+  else
+    out.status = fmt("blended by time at fraction %.2f", w) +
+                 (p.motion == AmbientMotion::kHomography ? " (too little texture to track)" : "");
+  return out;
+}
+
+}  // namespace structured_light_stabilizer

@@ -1,0 +1,131 @@
+// Splitting a strobed stream (strobe_demux.h) on simulator frames with the
+// truth of which frames had the projector on: by parity with the phase
+// found from the images (also after a dropped frame and with the dots at
+// 30 % of the sunlit rock), and by the projector's pulse times (pulses
+// before or after the frames, a frame without pulse information dropped).
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "structured_light_stabilizer/sim/radiometry.h"
+#include "structured_light_stabilizer/sim/simulator.h"
+#include "structured_light_stabilizer/strobe_demux.h"
+
+using namespace structured_light_stabilizer;
+
+namespace
+{
+
+struct Stream
+{
+  std::vector<cv::Mat> images;
+  std::vector<double> stamps;
+  std::vector<bool> on;
+};
+
+// `n` frames at 30 Hz, the projector on in the frames where index % 2 ==
+// on_parity, the rig moving; frame `skip` (if >= 0) lost in transit.
+Stream strobedStream(int n, int on_parity, int skip, double dot_to_sun)
+{
+  SimulatorParams p;
+  applySimRadiometry(studySimRadiometry(), &p);  // the historical camera; the ratio below
+  p.rock.seed = 21;
+  p.lighting.sun_level = 1.0;
+  p.lighting.dot_to_sun_ratio = dot_to_sun;
+  p.motion.jitter_translation_m = 0.002;
+  p.motion.jitter_rotation_rad = 0.001;
+  p.motion.drift_velocity_mps = Eigen::Vector3d(0.02, 0.0, 0.0);
+  const Simulator sim(p);
+  Stream s;
+  for (int i = 0; i < n; ++i)
+  {
+    if (i == skip)
+      continue;
+    FrameRequest r;
+    r.projector_on = i % 2 == on_parity;
+    s.images.push_back(sim.render(i / 30.0, r).image);
+    s.stamps.push_back(i / 30.0);
+    s.on.push_back(r.projector_on);
+  }
+  return s;
+}
+
+}  // namespace
+
+TEST(StrobeDemux, ParityFindsThePhaseAndRecoversAfterADroppedFrame)
+{
+  // Started on the wrong phase (the first frame is ambient), and frame 20 lost.
+  const Stream s = strobedStream(44, 1, 20, 0.3);
+  StrobeDemuxParams p;
+  p.phase = 0;
+  StrobeDemux demux(p);
+  int wrong_after_settling = 0, wrong = 0;
+  for (size_t i = 0; i < s.images.size(); ++i)
+  {
+    const std::vector<StrobedFrame> out = demux.push(s.images[i], s.stamps[i]);
+    ASSERT_EQ(out.size(), 1u);
+    const bool mistaken = out[0].projector_on != s.on[i];
+    wrong += mistaken;
+    // Settling: the vote needs a majority of its window after the start and after the loss.
+    if ((i >= 10 && i < 20) || i >= 30)
+      wrong_after_settling += mistaken;
+  }
+  std::cout << "[ MEASURE ] parity: " << wrong << " of " << s.images.size()
+            << " frames misrouted while the vote settled, last pair score " << demux.lastScore() << "\n";
+  EXPECT_EQ(wrong_after_settling, 0);
+  EXPECT_LE(wrong, 20);
+}
+
+TEST(StrobeDemux, FixedPhaseWithoutVoting)
+{
+  const Stream s = strobedStream(6, 0, -1, 0.3);
+  StrobeDemuxParams p;
+  p.auto_phase = false;
+  StrobeDemux demux(p);
+  for (size_t i = 0; i < s.images.size(); ++i)
+    EXPECT_EQ(demux.push(s.images[i], s.stamps[i])[0].projector_on, s.on[i]);
+}
+
+TEST(StrobeDemux, PulseTimesBeforeOrAfterTheFrames)
+{
+  StrobeDemuxParams p;
+  p.mode = StrobeMode::kTrigger;
+  p.tolerance_s = 0.004;
+  p.wait_s = 0.2;
+  StrobeDemux demux(p);
+  const cv::Mat img(8, 8, CV_8UC1, cv::Scalar(1));
+  // The pulse of frame 0 arrives before it; frame 1 (ambient) waits until
+  // the pulse of frame 2 shows that none came for it.
+  EXPECT_TRUE(demux.addPulse(0.001).empty());
+  std::vector<StrobedFrame> out = demux.push(img, 0.0);
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_TRUE(out[0].projector_on);
+  EXPECT_TRUE(demux.push(img, 1 / 30.0).empty());
+  EXPECT_TRUE(demux.push(img, 2 / 30.0).empty());
+  out = demux.addPulse(2 / 30.0 + 0.002);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_FALSE(out[0].projector_on);
+  EXPECT_TRUE(out[1].projector_on);
+  EXPECT_EQ(out[1].index, 2);
+  // No pulse information at all for 0.2 s: the frame is given up.
+  std::vector<StrobedFrame> dropped;
+  EXPECT_TRUE(demux.push(img, 3 / 30.0, &dropped).empty());
+  out = demux.push(img, 3 / 30.0 + 0.25, &dropped);
+  EXPECT_EQ(dropped.size(), 1u);
+  EXPECT_TRUE(out.empty());  // the newer one still waits
+}
+
+TEST(StrobeDemux, BadParams)
+{
+  StrobeDemuxParams p;
+  p.votes = 4;
+  EXPECT_FALSE(p.validate().empty());
+  p.votes = 9;
+  p.phase = 2;
+  EXPECT_FALSE(p.validate().empty());
+  p.phase = 0;
+  p.tolerance_s = 0.0;
+  EXPECT_FALSE(p.validate().empty());
+  // Frames of another size score 0 (no vote) instead of failing.
+  EXPECT_EQ(strobePairScore(cv::Mat(4, 4, CV_8UC1), cv::Mat(5, 4, CV_8UC1)), 0.0);
+}
