@@ -205,7 +205,6 @@ public:
       return {GrabStatus::kSkip, ""};
     rendered_by_ = simulator();
     // Strobed: odd frames are the ambient ones (index_ counts this frame).
-    FrameRequest request;
     request.projector_on = !(strobe_ && index_ % 2 == 0);
     const auto t0 = std::chrono::steady_clock::now();
     rendered_ = rendered_by_->render(t, request);
