@@ -163,8 +163,8 @@ double worstCaseSnr(const Simulator& sim)
   const double beam_px = LightingParams::kReferenceBeamSigmaRad * sc.camera.fx;
   const double defocus_px = sim.diameterOfConfusion(LightingParams::kReferenceDistanceM) / 4.0 / sc.pixel_size_m;
   const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
-  const double diffraction_px = 0.42 * sim.params().projector.wavelength_nm * 1e-9 * image_dist /
-                                sc.aperture_diameter_m / sc.pixel_size_m;
+  const double diffraction_px =
+      0.42 * sim.params().projector.wavelength_nm * 1e-9 * image_dist / sc.aperture_diameter_m / sc.pixel_size_m;
   const double var = beam_px * beam_px + defocus_px * defocus_px + diffraction_px * diffraction_px + 1.0 / 12.0;
   const double background = LightingParams::kSunFullScaleDn * 0.05 * 0.55;
   const double peak = defaults.lighting.dot_to_sun_ratio * background * beam_px * beam_px / var;

@@ -1,0 +1,352 @@
+// Reading raw rows of every accepted encoding, and the SIMD row passes of the
+// threshold pass for the common ones (see spot_detector_pixels.h). A block of
+// 16 cells without a candidate costs a deinterleaving load, a few
+// multiply/max/saturating-subtract operations and one test, which keeps the
+// pass near the memory bandwidth limit.
+#include <algorithm>
+
+#include <opencv2/core/hal/intrin.hpp>
+
+#include "spot_detector_pixels.h"
+
+namespace structured_light_stabilizer
+{
+namespace fast_detector
+{
+namespace pixels
+{
+
+namespace
+{
+// Bayer cell: r, g (rounded mean of the two greens), b.
+void bayerCell(const cv::Mat& m, PixelFormat format, int gx, int gy, int* rgb)
+{
+  const uint8_t* r0 = m.ptr<uint8_t>(2 * gy) + 2 * gx;
+  const uint8_t* r1 = m.ptr<uint8_t>(2 * gy + 1) + 2 * gx;
+  const int v[4] = {r0[0], r0[1], r1[0], r1[1]};
+  int green = 0;
+  for (int k = 0; k < 4; ++k)
+  {
+    const int c = bayerColour(format, k & 1, k >> 1);
+    if (c == kGreen)
+      green += v[k];
+    else
+      rgb[c] = v[k];
+  }
+  rgb[kGreen] = (green + 1) >> 1;
+}
+}  // namespace
+
+void decodeCell(const cv::Mat& m, PixelFormat format, int gx, int gy, int* rgb)
+{
+  switch (format)
+  {
+    case PixelFormat::kMono8:
+      rgb[0] = rgb[1] = rgb[2] = m.ptr<uint8_t>(gy)[gx];
+      return;
+    case PixelFormat::kMono16:
+      rgb[0] = rgb[1] = rgb[2] = m.ptr<uint16_t>(gy)[gx];
+      return;
+    case PixelFormat::kUyvy:
+    case PixelFormat::kYuyv:
+      yuvPixel(m.ptr<uint8_t>(gy), format == PixelFormat::kUyvy, gx, rgb);
+      return;
+    default:
+      break;
+  }
+  if (isBayer(format))
+  {
+    bayerCell(m, format, gx, gy, rgb);
+    return;
+  }
+  const Interleaved L = interleavedLayout(format);
+  const uint8_t* px = m.ptr<uint8_t>(gy) + gx * L.bytes;
+  rgb[0] = px[L.r];
+  rgb[1] = px[L.g];
+  rgb[2] = px[L.b];
+}
+
+void decodeRow(const cv::Mat& m, PixelFormat format, int gy, int n, int* out)
+{
+  if (format == PixelFormat::kMono8 || format == PixelFormat::kMono16)
+  {
+    for (int gx = 0; gx < n; ++gx)
+    {
+      const int v = format == PixelFormat::kMono8 ? m.ptr<uint8_t>(gy)[gx] : m.ptr<uint16_t>(gy)[gx];
+      out[3 * gx] = out[3 * gx + 1] = out[3 * gx + 2] = v;
+    }
+    return;
+  }
+  if (format == PixelFormat::kBgr8 || format == PixelFormat::kRgb8 || format == PixelFormat::kBgra8 ||
+      format == PixelFormat::kRgba8)
+  {
+    const Interleaved L = interleavedLayout(format);
+    const uint8_t* px = m.ptr<uint8_t>(gy);
+    for (int gx = 0; gx < n; ++gx, px += L.bytes)
+    {
+      out[3 * gx] = px[L.r];
+      out[3 * gx + 1] = px[L.g];
+      out[3 * gx + 2] = px[L.b];
+    }
+    return;
+  }
+  for (int gx = 0; gx < n; ++gx)
+    decodeCell(m, format, gx, gy, out + 3 * gx);
+}
+
+int bayerChannel(const cv::Mat& m, PixelFormat format, int x, int y, int ch)
+{
+  const int own = bayerColour(format, x, y);
+  if (own == ch)
+    return bayerRaw(m, x, y);
+  if (ch == kGreen)  // at a red or blue site: the four direct neighbours are green
+    return (bayerRaw(m, x - 1, y) + bayerRaw(m, x + 1, y) + bayerRaw(m, x, y - 1) + bayerRaw(m, x, y + 1) + 2) >> 2;
+  if (own == kGreen)  // red/blue at a green site: the pair left/right or above/below
+  {
+    if (bayerColour(format, x + 1, y) == ch)
+      return (bayerRaw(m, x - 1, y) + bayerRaw(m, x + 1, y) + 1) >> 1;
+    return (bayerRaw(m, x, y - 1) + bayerRaw(m, x, y + 1) + 1) >> 1;
+  }
+  // Red at a blue site or blue at a red one: the four diagonal neighbours.
+  return (bayerRaw(m, x - 1, y - 1) + bayerRaw(m, x + 1, y - 1) + bayerRaw(m, x - 1, y + 1) +
+          bayerRaw(m, x + 1, y + 1) + 2) >>
+         2;
+}
+
+}  // namespace pixels
+
+namespace rows
+{
+
+namespace
+{
+inline void markCell(std::vector<Run>* runs, int y, int x)
+{
+  if (!runs->empty() && runs->back().y == y && runs->back().x1 == x - 1)
+    runs->back().x1 = x;
+  else
+    runs->push_back({y, x, x});
+}
+
+// The generic score of one cell (FramePlanes::colourScore) and its verdict,
+// for the tails of the SIMD loops.
+inline void scalarCell(const int* rgb, const ColourModel& model, int k_ref, int k_third, int threshold, int y, int x,
+                       std::vector<Run>* runs, uint16_t* acc)
+{
+  const int s = rgb[model.signal] - std::max((k_ref * rgb[model.reference]) >> 8, (k_third * rgb[model.third]) >> 8);
+  if (acc)
+    acc[x] = static_cast<uint16_t>(acc[x] + std::min(255, std::max(0, s)));
+  if (s >= threshold)
+    markCell(runs, y, x);
+}
+
+#if CV_SIMD128
+// (k x) >> 8 for 16 values, k in 1/256 up to 4 (k = 256 hi + lo), saturated
+// at 255: the same as the scalar (k * x) >> 8 below 256.
+struct Scale
+{
+  cv::v_uint16x8 hi, lo;
+  explicit Scale(int k)
+    : hi(cv::v_setall_u16(static_cast<uint16_t>(k >> 8))), lo(cv::v_setall_u16(static_cast<uint16_t>(k & 255)))
+  {
+  }
+  cv::v_uint8x16 operator()(const cv::v_uint8x16& x) const
+  {
+    cv::v_uint16x8 a, b;
+    cv::v_expand(x, a, b);
+    a = cv::v_mul_wrap(a, hi) + cv::v_shr<8>(cv::v_mul_wrap(a, lo));
+    b = cv::v_mul_wrap(b, hi) + cv::v_shr<8>(cv::v_mul_wrap(b, lo));
+    return cv::v_pack(a, b);
+  }
+};
+
+// (a + b + 1) >> 1 for 16 values (the rounded mean of a Bayer cell's greens).
+inline cv::v_uint8x16 average(const cv::v_uint8x16& a, const cv::v_uint8x16& b)
+{
+  cv::v_uint16x8 a0, a1, b0, b1;
+  cv::v_expand(a, a0, a1);
+  cv::v_expand(b, b0, b1);
+  const cv::v_uint16x8 one = cv::v_setall_u16(1);
+  return cv::v_pack(cv::v_shr<1>(a0 + b0 + one), cv::v_shr<1>(a1 + b1 + one));
+}
+
+// Scores s - max(k_ref r, k_third t) (saturating) of 16 cells: runs and acc.
+inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y, int x, std::vector<Run>* runs,
+                 uint16_t* acc)
+{
+  if (acc)
+  {
+    cv::v_uint16x8 lo, hi;
+    cv::v_expand(s, lo, hi);
+    cv::v_store(acc + x, cv::v_load(acc + x) + lo);
+    cv::v_store(acc + x + 8, cv::v_load(acc + x + 8) + hi);
+  }
+  const cv::v_uint8x16 m = s >= threshold;
+  if (!cv::v_check_any(m))
+    return;
+  alignas(16) uint8_t hit[16];
+  cv::v_store(hit, m);
+  for (int i = 0; i < 16; ++i)
+    if (hit[i])
+      markCell(runs, y, x + i);
+}
+#endif
+
+// Interleaved 8-bit colour: kS, kR, kT are the byte offsets of the signal,
+// reference and third channels in a pixel of kC bytes.
+template <int kC, int kS, int kR, int kT>
+void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& model, int k_ref, int k_third,
+                    int threshold, std::vector<Run>* runs, uint16_t* acc)
+{
+  int x = 0;
+#if CV_SIMD128
+  const Scale scale_ref(k_ref), scale_third(k_third);
+  const cv::v_uint8x16 vthr = cv::v_setall_u8(static_cast<uint8_t>(std::min(threshold, 255)));
+  for (; x + 16 <= width; x += 16)
+  {
+    cv::v_uint8x16 c[4];
+    if (kC == 3)
+      cv::v_load_deinterleave(row + 3 * x, c[0], c[1], c[2]);
+    else
+      cv::v_load_deinterleave(row + 4 * x, c[0], c[1], c[2], c[3]);
+    emit(c[kS] - cv::v_max(scale_ref(c[kR]), scale_third(c[kT])), vthr, y, x, runs, acc);
+  }
+#endif
+  for (; x < width; ++x)
+  {
+    const uint8_t* px = row + kC * x;
+    int rgb[3];
+    rgb[model.signal] = px[kS];
+    rgb[model.reference] = px[kR];
+    rgb[model.third] = px[kT];
+    scalarCell(rgb, model, k_ref, k_third, threshold, y, x, runs, acc);
+  }
+}
+
+// Bayer: kPattern 0..3 = rggb, bggr, gbrg, grbg; kColour = the signal channel
+// (green: reference red, third blue; red: green, blue; blue: red, green).
+template <int kPattern, int kColour>
+void bayerRow(const cv::Mat& m, PixelFormat format, int cells, int gy, const ColourModel& model, int k_ref, int k_third,
+              int threshold, std::vector<Run>* runs, uint16_t* acc)
+{
+  int x = 0;
+#if CV_SIMD128
+  const uint8_t* r0 = m.ptr<uint8_t>(2 * gy);
+  const uint8_t* r1 = m.ptr<uint8_t>(2 * gy + 1);
+  const Scale scale_ref(k_ref), scale_third(k_third);
+  const cv::v_uint8x16 vthr = cv::v_setall_u8(static_cast<uint8_t>(std::min(threshold, 255)));
+  for (; x + 16 <= cells; x += 16)
+  {
+    cv::v_uint8x16 e0, o0, e1, o1;
+    cv::v_load_deinterleave(r0 + 2 * x, e0, o0);
+    cv::v_load_deinterleave(r1 + 2 * x, e1, o1);
+    // r, g1, g2, b of the pattern.
+    const cv::v_uint8x16 R = kPattern == 0 ? e0 : kPattern == 1 ? o1 : kPattern == 2 ? e1 : o0;
+    const cv::v_uint8x16 B = kPattern == 0 ? o1 : kPattern == 1 ? e0 : kPattern == 2 ? o0 : e1;
+    const cv::v_uint8x16 G = kPattern <= 1 ? average(o0, e1) : average(e0, o1);
+    const cv::v_uint8x16 S = kColour == kGreen ? G : kColour == kRed ? R : B;
+    const cv::v_uint8x16 Ref = kColour == kGreen ? R : kColour == kRed ? G : R;
+    const cv::v_uint8x16 T = kColour == kGreen ? B : kColour == kRed ? B : G;
+    emit(S - cv::v_max(scale_ref(Ref), scale_third(T)), vthr, gy, x, runs, acc);
+  }
+#endif
+  for (; x < cells; ++x)
+  {
+    int rgb[3];
+    pixels::decodeCell(m, format, x, gy, rgb);
+    scalarCell(rgb, model, k_ref, k_third, threshold, gy, x, runs, acc);
+  }
+}
+
+using InterleavedPass = void (*)(const uint8_t*, int, int, const ColourModel&, int, int, int, std::vector<Run>*,
+                                 uint16_t*);
+using BayerPass = void (*)(const cv::Mat&, PixelFormat, int, int, const ColourModel&, int, int, int, std::vector<Run>*,
+                           uint16_t*);
+
+// Offsets (s, r, t) of the colours green, red, blue: [red first][colour].
+template <int kC>
+InterleavedPass interleavedPass(bool red_first, int signal)
+{
+  static const InterleavedPass kBgr[3] = {&interleavedRow<kC, 2, 1, 0>, &interleavedRow<kC, 1, 2, 0>,
+                                          &interleavedRow<kC, 0, 2, 1>};
+  static const InterleavedPass kRgb[3] = {&interleavedRow<kC, 0, 1, 2>, &interleavedRow<kC, 1, 0, 2>,
+                                          &interleavedRow<kC, 2, 0, 1>};
+  return (red_first ? kRgb : kBgr)[signal];  // indexed by the signal channel: kRed, kGreen, kBlue
+}
+
+template <int kPattern>
+BayerPass bayerPass(int signal)
+{
+  static const BayerPass kPasses[3] = {&bayerRow<kPattern, kRed>, &bayerRow<kPattern, kGreen>,
+                                       &bayerRow<kPattern, kBlue>};
+  return kPasses[signal];
+}
+}  // namespace
+
+bool colourRowRuns(const cv::Mat& image, PixelFormat format, const ColourModel& model, int k_ref, int k_third,
+                   int threshold, int gy, std::vector<Run>* runs, uint16_t* acc)
+{
+  switch (format)
+  {
+    case PixelFormat::kBgr8:
+    case PixelFormat::kRgb8:
+      interleavedPass<3>(format == PixelFormat::kRgb8, model.signal)(image.ptr<uint8_t>(gy), image.cols, gy, model,
+                                                                     k_ref, k_third, threshold, runs, acc);
+      return true;
+    case PixelFormat::kBgra8:
+    case PixelFormat::kRgba8:
+      interleavedPass<4>(format == PixelFormat::kRgba8, model.signal)(image.ptr<uint8_t>(gy), image.cols, gy, model,
+                                                                      k_ref, k_third, threshold, runs, acc);
+      return true;
+    case PixelFormat::kBayerRggb8:
+      bayerPass<0>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      return true;
+    case PixelFormat::kBayerBggr8:
+      bayerPass<1>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      return true;
+    case PixelFormat::kBayerGbrg8:
+      bayerPass<2>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      return true;
+    case PixelFormat::kBayerGrbg8:
+      bayerPass<3>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      return true;
+    default:
+      return false;
+  }
+}
+
+void monoRowRuns(const uint8_t* row, int width, int y, int block, const int* level, const int* threshold,
+                 std::vector<Run>* runs)
+{
+  for (int x0 = 0, b = 0; x0 < width; x0 += block, ++b)
+  {
+    // 16 v - level >= threshold  <=>  v >= ceil((level + threshold) / 16).
+    const int need = level[b] + threshold[b];
+    const int lim = need <= 0 ? 0 : (need + 15) / 16;
+    if (lim > 255)
+      continue;
+    const int x1 = std::min(width, x0 + block);
+    int x = x0;
+#if CV_SIMD128
+    const cv::v_uint8x16 vlim = cv::v_setall_u8(static_cast<uint8_t>(lim));
+    for (; x + 16 <= x1; x += 16)
+    {
+      const cv::v_uint8x16 m = cv::v_load(row + x) >= vlim;
+      if (!cv::v_check_any(m))
+        continue;
+      alignas(16) uint8_t hit[16];
+      cv::v_store(hit, m);
+      for (int i = 0; i < 16; ++i)
+        if (hit[i])
+          markCell(runs, y, x + i);
+    }
+#endif
+    for (; x < x1; ++x)
+      if (row[x] >= lim)
+        markCell(runs, y, x);
+  }
+}
+
+}  // namespace rows
+}  // namespace fast_detector
+}  // namespace structured_light_stabilizer

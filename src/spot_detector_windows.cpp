@@ -1,0 +1,87 @@
+// The inputs layer's windows: the planes of a frame (and of its ambient
+// frame) at full resolution around a candidate (see spot_detector_planes.h).
+#include <algorithm>
+
+#include "spot_detector_pixels.h"
+#include "spot_detector_planes.h"
+
+namespace structured_light_stabilizer
+{
+namespace fast_detector
+{
+
+// One pixel of m: the signal, reference and third planes (8-bit DN), whether
+// the signal is measured here, and whether a sample it depends on is clipped.
+void FramePlanes::fillPixel(const cv::Mat& m, int x, int y, float* s, float* r, float* t, bool* sample,
+                            bool* clipped) const
+{
+  *sample = true;
+  *r = *t = 0.0f;
+  if (format_ == PixelFormat::kMono8 || format_ == PixelFormat::kMono16)
+  {
+    const int v = format_ == PixelFormat::kMono8 ? m.ptr<uint8_t>(y)[x] : m.ptr<uint16_t>(y)[x];
+    *s = format_ == PixelFormat::kMono8 ? static_cast<float>(v) : static_cast<float>(v / 257.0);
+    *clipped = v >= saturation_;
+    return;
+  }
+  if (isBayer(format_))
+  {
+    bool any = false;
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx)
+        any = any || pixels::bayerRaw(m, x + dx, y + dy) >= saturation_;
+    *clipped = any;
+    if (!model_.colour)  // nir/white: every site sees the projector
+    {
+      *s = static_cast<float>(pixels::bayerRaw(m, x, y));
+      return;
+    }
+    *sample = pixels::bayerColour(format_, x, y) == model_.signal;
+    *s = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.signal));
+    *r = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.reference));
+    *t = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.third));
+    return;
+  }
+  int rgb[3];
+  pixels::decodeCell(m, format_, x, y, rgb);
+  *clipped = rgb[0] >= saturation_ || rgb[1] >= saturation_ || rgb[2] >= saturation_;
+  if (!model_.colour)
+  {
+    *s = 0.25f * static_cast<float>(rgb[0] + 2 * rgb[1] + rgb[2]);
+    return;
+  }
+  *s = static_cast<float>(rgb[model_.signal]);
+  *r = static_cast<float>(rgb[model_.reference]);
+  *t = static_cast<float>(rgb[model_.third]);
+}
+
+void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
+{
+  w->cx = cx;
+  w->cy = cy;
+  w->H = H;
+  w->stride = (2 * H + 1 + 3) & ~3;
+  w->colour = model_.colour;
+  w->ambient = !ambient_.empty();
+  w->ring = isBayer(format_) ? 2 : 1;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    for (int dx = -H; dx <= H; ++dx)
+    {
+      const int i = w->index(dx, dy);
+      bool sample, clipped;
+      fillPixel(image_, cx + dx, cy + dy, &w->signal[i], &w->reference[i], &w->third[i], &sample, &clipped);
+      if (w->ambient)
+      {
+        bool ambient_sample, ambient_clipped;
+        fillPixel(ambient_, cx + dx, cy + dy, &w->ambient_signal[i], &w->ambient_reference[i], &w->ambient_third[i],
+                  &ambient_sample, &ambient_clipped);
+        clipped = clipped || ambient_clipped;
+      }
+      w->flags[i] = static_cast<uint8_t>((sample ? PlaneWindow::kSample : 0) | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
+}  // namespace fast_detector
+}  // namespace structured_light_stabilizer
