@@ -8,6 +8,7 @@
 // simulator"); lighting, noise and jitter are live (cfg/CameraDriver.cfg).
 // Simulated time advances by 1 / ~rate per frame, deterministically, also
 // across rate changes and while ~lazy skips the rendering.
+#include <functional>
 #include <mutex>
 #include <utility>
 #include <vector>
@@ -105,6 +106,30 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
   }
 }
 
+// The named (string) scene settings and the chessboard target: ~target
+// (rock | chessboard) and its ~board_* keys. An unknown name is an error
+// naming the choices, and the default stays.
+void readNamedSceneParams(const ros::NodeHandle& pnh, const ParamReader& read,
+                          const std::function<void(const std::string&)>& error, SimulatorParams* c)
+{
+  const std::string target = pnh.param<std::string>("target", "rock");
+  if (target == "chessboard")
+    c->target.kind = TargetKind::kChessboard;
+  else if (target != "rock")
+    error("unknown ~target '" + target + "' (rock | chessboard); using 'rock'");
+  ChessboardParams& b = c->target.chessboard;
+  read.integer("board_cols", &b.cols);
+  read.integer("board_rows", &b.rows);
+  const std::pair<const char*, double*> numbers[] = {
+      {"board_square", &b.square_m},       {"board_margin", &b.margin_m},     {"board_black", &b.black},
+      {"board_white", &b.white},           {"board_distance", &b.distance_m}, {"board_tilt_x", &b.tilt_x_rad},
+      {"board_tilt_y", &b.tilt_y_rad},     {"board_roll", &b.roll_rad},       {"board_offset_x", &b.offset_m.x()},
+      {"board_offset_y", &b.offset_m.y()},
+  };
+  for (const auto& p : numbers)
+    read.number(p.first, p.second);
+}
+
 // ---- dynamic_reconfigure <-> the simulator's live settings, one function each way.
 
 void liveSettingsFromConfig(const CameraDriverConfig& config, RadiometryModel model, SimulatorParams* c)
@@ -146,6 +171,7 @@ public:
   {
     SimulatorParams c;
     readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
+    readNamedSceneParams(ctx_.pnh, ParamReader(ctx_.pnh, ctx_.error), ctx_.error, &c);
     const std::string ratio_source = readLighting(&c);
     duration_s_ = ctx_.pnh.param("duration", 0.0);
     useUrlCalibration(&c);

@@ -19,6 +19,7 @@
 #include "rock_surface.h"
 #include "sensor.h"
 #include "splat.h"
+#include "target_board.h"
 #include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
@@ -93,13 +94,18 @@ void exposeRows(const sim::RockSampling& sampling, const float* rock_samples, co
 struct Simulator::Impl
 {
   explicit Impl(const SimulatorParams& p)
-    : rock(p.rock, p.lighting),
-      sampling(p.sensor.camera, p.rock_subsample),
+    : board(p.target.kind == TargetKind::kChessboard),
+      rock(board ? sim::boardSlab(p.target.chessboard, p.rock) : p.rock, p.lighting),
+      // The board's sharp print is rendered per pixel.
+      sampling(p.sensor.camera, board ? 1 : p.rock_subsample),
       clutter(sim::scatterClutter(p.clutter, rock, p.rock.seed)),
-      T_rock_cam0(rockFromCamera0(p.rock))
+      T_rock_cam0(board ? sim::boardRockFromCamera0(p.target.chessboard) : rockFromCamera0(p.rock))
   {
+    if (board)
+      rock.board = std::make_shared<const sim::ChessboardPattern>(p.target.chessboard);
   }
 
+  bool board;
   sim::RockSurface rock;
   sim::RockSampling sampling;
   std::vector<sim::ClutterItem> clutter;
@@ -188,12 +194,13 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
     sim::addClutterSplats(im.clutter, im.rock, g, sc, sun, &splats);
   const size_t clutter_splats = splats.size();
   sim::renderDots(params_, projector_, im.rock, g, &frame, &splats, &dot_albedo);
+  if (im.board)
+    sim::boardTruth(params_.target.chessboard, sc.camera, g, &frame.target_pose, &frame.target_corners);
   if (!request.projector_on)
     splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
   const sim::SplatRows splat_rows(std::move(splats), std::move(dot_albedo), im.rock, sc.camera.height);
 
-  const float* rock_samples =
-      sun > 0.0 ? sim::renderRockSamples(im.rock, im.sampling, sc.camera, g, sun, sc.natural_vignetting) : nullptr;
+  const float* rock_samples = sun > 0.0 ? sim::renderRockSamples(im.rock, im.sampling, sc, g, sun) : nullptr;
   if (params_.keep_linear)
     frame.linear.create(sc.camera.height, sc.camera.width, CV_32FC3);
   frame.image.create(sc.camera.height, sc.camera.width, CV_8UC3);

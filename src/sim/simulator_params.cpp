@@ -1,5 +1,6 @@
 #include "structured_light_stabilizer/sim/simulator_params.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -63,6 +64,27 @@ void checkRock(const RockParams& rock, std::ostringstream& why)
     why << "rock tilt must stay below 1.2 rad; ";
 }
 
+void checkTarget(const TargetParams& target, std::ostringstream& why)
+{
+  if (target.kind != TargetKind::kChessboard)
+    return;
+  const ChessboardParams& b = target.chessboard;
+  if (b.cols < 2 || b.rows < 2 || b.cols > 60 || b.rows > 60)
+    why << "chessboard inner corners " << b.cols << " x " << b.rows << " are outside [2, 60]; ";
+  if (!(b.square_m >= 0.005 && b.square_m <= 1.0) || !(b.margin_m >= 0.0 && b.margin_m <= 1.0))
+    why << "chessboard square " << b.square_m << " m must be in [0.005, 1] and margin " << b.margin_m
+        << " m in [0, 1]; ";
+  else if ((std::max(b.cols, b.rows) + 1) * b.square_m + 2.0 * b.margin_m > 5.0)
+    why << "chessboard larger than 5 m; ";
+  if (!(b.black >= 0.0 && b.black <= b.white && b.white <= 1.0))
+    why << "chessboard reflectances must satisfy 0 <= black <= white <= 1; ";
+  if (!(b.distance_m >= 0.2 && b.distance_m <= 20.0))
+    why << "chessboard distance " << b.distance_m << " m is outside [0.2, 20]; ";
+  if (!(std::abs(b.tilt_x_rad) < 1.4 && std::abs(b.tilt_y_rad) < 1.4) || !std::isfinite(b.roll_rad) ||
+      !b.offset_m.allFinite())
+    why << "chessboard tilts must stay below 1.4 rad, roll and offset finite; ";
+}
+
 void checkProjector(const ProjectorParams& projector, std::ostringstream& why)
 {
   if (projector.rows < 1 || projector.cols < 1 || projector.rows > 100 || projector.cols > 100)
@@ -111,6 +133,7 @@ std::string SimulatorParams::validate() const
   std::ostringstream why;
   checkSensor(sensor, why);
   checkRock(rock, why);
+  checkTarget(target, why);
   checkProjector(projector, why);
   checkLighting(lighting, why);
   checkMotion(motion, why);

@@ -72,6 +72,13 @@ struct SimFrame
   std::vector<double> peak_dn;          // per beam, noise-free peak of the dot in the green channel (0 if not visible)
   cv::Mat linear;                       // CV_32FC3 noise-free radiance in DN, only with keep_linear
   Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();  // p_cur = delta * p_ref, ref = t=0
+  // Chessboard target only (TargetKind::kChessboard; identity / empty
+  // otherwise): the board frame (ChessboardParams) in the camera frame at t
+  // (p_cam = target_pose * p_board), and the distorted pixel of every inner
+  // corner, index j * cols + i for corner (i, j) (OpenCV's object-point
+  // order), NaN when behind the camera or outside the image.
+  Eigen::Isometry3d target_pose = Eigen::Isometry3d::Identity();
+  std::vector<cv::Point2d> target_corners;
 };
 
 // What a frame is asked for besides its time (the CameraDriver's strobed and

@@ -136,10 +136,44 @@ struct ClutterParams
   int green_blobs = 0;     // dot-sized green blobs on the rock (spurious dots)
 };
 
+// A printed chessboard (#19), OpenCV's convention: `cols` x `rows` inner
+// corners, corner (i, j) at (i * square_m, j * square_m, 0) in the board
+// frame (x along a row of corners, y down the rows, z into the board, away
+// from the camera); the outer square at the corner (-1, -1) is black. The
+// squares sit inside a white printed margin; the board is flat.
+struct ChessboardParams
+{
+  int cols = 10;  // inner corners per row
+  int rows = 8;   // inner corners per column
+  double square_m = 0.08;
+  double margin_m = 0.04;            // white margin around the outer squares
+  double black = 0.03, white = 0.5;  // reflectance, every band (white / black ~ 16)
+  // Pose at t = 0: the centre of the inner corners at `distance_m` along the
+  // optical axis plus `offset_m` (camera x, y), the board rotated by
+  // Rx(tilt_x) Ry(tilt_y) Rz(roll) from facing the camera squarely.
+  double distance_m = 1.5;
+  double tilt_x_rad = 0.0, tilt_y_rad = 0.0, roll_rad = 0.0;
+  Eigen::Vector2d offset_m = Eigen::Vector2d::Zero();
+};
+
+enum class TargetKind
+{
+  kRock,        // the rock of RockParams
+  kChessboard,  // a flat printed chessboard (ChessboardParams) instead
+};
+
+// What the camera looks at (docs/simulator.md, "Targets").
+struct TargetParams
+{
+  TargetKind kind = TargetKind::kRock;
+  ChessboardParams chessboard;
+};
+
 struct SimulatorParams
 {
   SensorParams sensor;
   RockParams rock;
+  TargetParams target;
   ProjectorParams projector;
   LightingParams lighting;
   RigMotionParams motion;
