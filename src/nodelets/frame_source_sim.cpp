@@ -106,12 +106,37 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
   }
 }
 
+// The projector's colour and the sensor's output (docs/simulator.md,
+// "Colours and sensor outputs"): ~projector_color (green | red | blue | nir |
+// white; its nominal wavelength unless ~projector_wavelength), ~sensor_output
+// (an image encoding), ~blooming (none | column), ~full_well (DN).
+void readColourAndSensorParams(const ros::NodeHandle& pnh, const ParamReader& read,
+                               const std::function<void(const std::string&)>& error, SimulatorParams* c)
+{
+  const std::string color = pnh.param<std::string>("projector_color", "green");
+  if (!projectorColorFromName(color, &c->projector.color))
+    error("unknown ~projector_color '" + color + "' (green | red | blue | nir | white); using 'green'");
+  c->projector.wavelength_nm = nominalWavelengthNm(c->projector.color);
+  read.number("projector_wavelength", &c->projector.wavelength_nm);
+  const std::string output = pnh.param<std::string>("sensor_output", "bgr8");
+  if (!sensorOutputFromEncoding(output, &c->sensor.output))
+    error("unknown ~sensor_output '" + output +
+          "' (bgr8 | rgb8 | mono8 | mono16 | bayer_rggb8 | bayer_bggr8 | bayer_gbrg8 | bayer_grbg8); using 'bgr8'");
+  const std::string blooming = pnh.param<std::string>("blooming", "none");
+  if (blooming == "column")
+    c->sensor.blooming = Blooming::kColumn;
+  else if (blooming != "none")
+    error("unknown ~blooming '" + blooming + "' (none | column); using 'none'");
+  read.number("full_well", &c->sensor.full_well_dn);
+}
+
 // The named (string) scene settings and the chessboard target: ~target
 // (rock | chessboard) and its ~board_* keys. An unknown name is an error
 // naming the choices, and the default stays.
 void readNamedSceneParams(const ros::NodeHandle& pnh, const ParamReader& read,
                           const std::function<void(const std::string&)>& error, SimulatorParams* c)
 {
+  readColourAndSensorParams(pnh, read, error, c);
   const std::string target = pnh.param<std::string>("target", "rock");
   if (target == "chessboard")
     c->target.kind = TargetKind::kChessboard;
@@ -219,6 +244,7 @@ public:
     rendered_ = rendered_by_->render(t);
     frame->processing_ms = millisecondsSince(t0);
     frame->image = rendered_.image;
+    frame->encoding = rendered_.encoding;
     return {GrabStatus::kFrame, ""};
   }
 

@@ -7,6 +7,7 @@
 
 #include "brightness.h"
 #include "optics.h"
+#include "spectral.h"
 #include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
@@ -19,10 +20,6 @@ namespace
 
 using detail::kNaN;
 using detail::kPi;
-
-// Relative response of the B, G, R pixels of a Bayer sensor to 520 nm light:
-// mostly green, with the usual cross-talk into blue and a little into red.
-constexpr double kDotResponseBgr[3] = {0.22, 1.0, 0.08};
 
 // Where a beam meets the rock, seen from the camera.
 struct DotHit
@@ -110,6 +107,7 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
   frame->peak_dn.assign(nb, 0.0);
   const double sigma_diff_px = diffractionSigmaPx(sc, params.projector.wavelength_nm);
   const double dot_gain = dotGain(params);
+  const CameraSpectrum spectrum = cameraSpectrum(params.projector.color, sc.output);
   for (int b = 0; b < nb; ++b)
   {
     const BeamRay& beam = projector.beams[b];
@@ -137,13 +135,10 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
         dot_gain * cos_i * 2.0 * kPi * std::sqrt(std::max(0.0, G.determinant())) * vignetting(sc, hit.X);
     const double amplitude = energy / (2.0 * kPi * std::sqrt(S.determinant()));
     DotAlbedo da = dotAlbedo(g, hit, n, J, A, S);
-    for (int c = 0; c < 3; ++c)
-      da.mix[c][1] = static_cast<float>(kDotResponseBgr[c]);
+    std::copy(&spectrum.dot_mix[0][0], &spectrum.dot_mix[0][0] + 12, &da.mix[0][0]);
     da.g_lookup = std::min(1e-3, 0.02 / std::max(amplitude, 1e-9));
     da.factors(rock, 0.0, 0.0, da.f0);
-    float rho[4];
-    rock.reflectanceUnderDot(da.x0, da.y0, 0.0, 0.0, rho);
-    frame->peak_dn[b] = amplitude * rho[1];
+    frame->peak_dn[b] = amplitude * da.f0[spectrum.primary];
     frame->blur_sigma_px[b] = std::sqrt(0.5 * S.trace());
     Splat sp;
     sp.cx = hit.pixel.x;

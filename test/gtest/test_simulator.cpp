@@ -1006,3 +1006,250 @@ void checkPrintedEdgeShift(double aperture_m)
   // to ~1 % of the shift (measured 0.025 px at 2.2 px), as a real sensor's would.
   EXPECT_LT(worst, aperture_m > 0.005 ? 1e-3 : 0.035);
 }
+
+namespace
+{
+
+// Noise-free, the rock's albedo uniform (R = 0.3, G = 0.55 R, B = 0.36 R),
+// full sun: the channels are exactly predictable. The central 400 x 400
+// pixels of the study's camera (the whole grid of dots), to keep the tests lean.
+sls::SimulatorParams plainNoiseFree()
+{
+  sls::SimulatorParams c;
+  c.sensor.camera.width = c.sensor.camera.height = 400;
+  c.sensor.camera.cx = c.sensor.camera.cy = 199.5;
+  c.rock.width_m = c.rock.height_m = 0.8;  // what it sees at 1.5 m (a quicker build)
+  c.lighting.sun_level = 0.6;
+  c.sensor.read_noise_dn = 0.0;
+  c.sensor.shot_noise = false;
+  c.keep_linear = true;
+  c.rock.albedo_min = c.rock.albedo_max = 0.3;
+  return c;
+}
+
+}  // namespace
+
+TEST(Simulator, BayerMosaicIsTheChannelAtEachSite)
+{
+  // Each Bayer pattern records, at pixel (u, v), the channel its colour
+  // filter passes (OpenCV/ROS naming: the first two letters are row 0).
+  const std::pair<sls::SensorOutput, const char*> patterns[] = {{sls::SensorOutput::kBayerRggb8, "RGGB"},
+                                                                {sls::SensorOutput::kBayerBggr8, "BGGR"},
+                                                                {sls::SensorOutput::kBayerGbrg8, "GBRG"},
+                                                                {sls::SensorOutput::kBayerGrbg8, "GRBG"}};
+  for (const auto& pattern : patterns)
+  {
+    sls::SimulatorParams c = plainNoiseFree();
+    c.rock.albedo_min = 0.05;  // textured, so that channels differ pixel to pixel
+    c.sensor.output = pattern.first;
+    const sls::SimFrame f = sls::Simulator(c).render(0.1);
+    ASSERT_EQ(f.image.type(), CV_8UC1);
+    ASSERT_EQ(f.linear.type(), CV_32FC3);
+    std::string name = "bayer_";
+    for (int k = 0; k < 4; ++k)
+      name += static_cast<char>(std::tolower(pattern.second[k]));
+    EXPECT_EQ(f.encoding, name + "8");
+    int wrong = 0;
+    for (int v = 0; v < f.image.rows; ++v)
+      for (int u = 0; u < f.image.cols; ++u)
+      {
+        const char letter = pattern.second[(v % 2) * 2 + (u % 2)];
+        const int ch = letter == 'B' ? 0 : (letter == 'G' ? 1 : 2);
+        wrong += f.image.at<uint8_t>(v, u) != cv::saturate_cast<uint8_t>(f.linear.at<cv::Vec3f>(v, u)[ch]);
+      }
+    EXPECT_EQ(wrong, 0) << pattern.second;
+  }
+  // With noise, each site carries its own channel's shot noise: in full sun
+  // the R sites (bright rock) are noisier than the B sites.
+  sls::SimulatorParams c = plainNoiseFree();
+  c.sensor.read_noise_dn = 1.0;
+  c.sensor.shot_noise = true;
+  c.sensor.output = sls::SensorOutput::kBayerRggb8;
+  c.projector.power_scale = 0.0;
+  const sls::SimFrame f = sls::Simulator(c).render(0.1);
+  double sum2[3] = {0, 0, 0}, predicted[3] = {0, 0, 0};
+  int n[3] = {0, 0, 0};
+  for (int v = 100; v < 300; ++v)
+    for (int u = 100; u < 300; ++u)
+    {
+      const int ch = (v % 2 == 0 && u % 2 == 0) ? 2 : ((v % 2 == 1 && u % 2 == 1) ? 0 : 1);
+      const double lin = f.linear.at<cv::Vec3f>(v, u)[ch];
+      const double e = f.image.at<uint8_t>(v, u) - lin;
+      sum2[ch] += e * e;
+      predicted[ch] += lin * c.sensor.gain_dn_per_electron + 1.0 + 1.0 / 12.0;  // shot, read, rounding
+      ++n[ch];
+    }
+  for (int ch = 0; ch < 3; ++ch)
+  {
+    const double measured = std::sqrt(sum2[ch] / n[ch]), expected = std::sqrt(predicted[ch] / n[ch]);
+    std::cout << "[ MEASURE ] Bayer noise, channel " << ch << ": " << measured << " DN (predicted " << expected
+              << ")\n";
+    EXPECT_NEAR(measured, expected, 0.05 * expected);
+  }
+}
+
+TEST(Simulator, MonoOutputsAndProjectorColoursReachTheChannelsTheyShould)
+{
+  // mono8 / mono16: the one channel is 0.25 B + 0.40 G + 0.35 R of the sunlit
+  // rock plus the dot's own band; mono16 is 257 x the 8-bit DN.
+  for (sls::SensorOutput out : {sls::SensorOutput::kMono8, sls::SensorOutput::kMono16})
+  {
+    sls::SimulatorParams c = plainNoiseFree();
+    c.sensor.output = out;
+    c.projector.power_scale = 0.0;
+    const sls::SimFrame f = sls::Simulator(c).render(0.0);
+    sls::SimulatorParams colour = c;
+    colour.sensor.output = sls::SensorOutput::kBgr8;
+    const sls::SimFrame fc = sls::Simulator(colour).render(0.0);
+    ASSERT_EQ(f.linear.type(), CV_32FC1);
+    const cv::Vec3f bgr = fc.linear.at<cv::Vec3f>(100, 300);
+    EXPECT_NEAR(f.linear.at<float>(100, 300), 0.25 * bgr[0] + 0.40 * bgr[1] + 0.35 * bgr[2], 1e-3);
+    if (out == sls::SensorOutput::kMono16)
+    {
+      EXPECT_EQ(f.image.type(), CV_16UC1);
+      EXPECT_NEAR(f.image.at<uint16_t>(100, 300), 257.0 * f.linear.at<float>(100, 300), 0.51);
+    }
+    else
+      EXPECT_NEAR(f.image.at<uint8_t>(100, 300), f.linear.at<float>(100, 300), 0.51);
+  }
+
+  // The dot's added light per channel follows its colour: on a uniform
+  // albedo (R = 0.3, G = 0.165, B = 0.108) a red dot gives R : G : B =
+  // 1 : 0.10 : 0.03 of the red reflectance, a blue one B : G : R = 1 : 0.12 :
+  // 0.02 of the blue one, a white one each channel its own band; an NIR dot
+  // on a monochrome camera reflects 1.25 x the red reflectance.
+  struct Case
+  {
+    sls::ProjectorColor color;
+    sls::SensorOutput output;
+    double expected[3];  // added light per channel / amplitude (B, G, R or mono)
+  };
+  const double r = 0.3, g = 0.55 * r, b = 0.36 * r;
+  const Case cases[] = {
+      {sls::ProjectorColor::kGreen, sls::SensorOutput::kBgr8, {0.22 * g, g, 0.08 * g}},
+      {sls::ProjectorColor::kRed, sls::SensorOutput::kBgr8, {0.03 * r, 0.10 * r, r}},
+      {sls::ProjectorColor::kBlue, sls::SensorOutput::kRgb8, {b, 0.12 * b, 0.02 * b}},
+      {sls::ProjectorColor::kWhite, sls::SensorOutput::kBgr8, {b, g, r}},
+      {sls::ProjectorColor::kNir, sls::SensorOutput::kMono8, {1.25 * r, 0, 0}},
+      {sls::ProjectorColor::kRed, sls::SensorOutput::kMono16, {r, 0, 0}},
+  };
+  for (const Case& k : cases)
+  {
+    sls::SimulatorParams c = plainNoiseFree();
+    c.lighting.dot_to_sun_ratio = 0.3;
+    c.projector.color = k.color;
+    c.projector.wavelength_nm = sls::nominalWavelengthNm(k.color);
+    c.sensor.output = k.output;
+    const sls::Simulator sim(c);
+    const sls::SimFrame on = sim.render(0.0);
+    sls::FrameRequest off_request;
+    off_request.projector_on = false;
+    const sls::SimFrame off = sim.render(0.0, off_request);
+    const int channels = on.linear.channels();
+    const int centre = 55;  // a beam near the middle
+    ASSERT_TRUE(on.visible[centre]);
+    const cv::Point p(cvRound(on.pixels[centre].x), cvRound(on.pixels[centre].y));
+    std::vector<double> added(channels);
+    for (int ch = 0; ch < channels; ++ch)
+      added[ch] = on.linear.ptr<float>(p.y)[channels * p.x + ch] - off.linear.ptr<float>(p.y)[channels * p.x + ch];
+    const int primary =
+        channels == 1 ? 0
+                      : (k.color == sls::ProjectorColor::kRed ? 2 : (k.color == sls::ProjectorColor::kBlue ? 0 : 1));
+    std::cout << "[ MEASURE ] " << sls::projectorColorName(k.color) << " on " << on.encoding << ": added light";
+    for (int ch = 0; ch < channels; ++ch)
+      std::cout << " " << added[ch] / added[primary] << " (expected " << k.expected[ch] / k.expected[primary] << ")";
+    std::cout << "\n";
+    for (int ch = 0; ch < channels; ++ch)
+      EXPECT_NEAR(added[ch] / added[primary], k.expected[ch] / k.expected[primary], 1e-3)
+          << sls::projectorColorName(k.color) << " channel " << ch;
+    if (k.output == sls::SensorOutput::kRgb8)
+    {
+      // rgb8 is bgr8 with R and B swapped.
+      sls::SimulatorParams bgr = c;
+      bgr.sensor.output = sls::SensorOutput::kBgr8;
+      cv::Mat swapped;
+      cv::cvtColor(sls::Simulator(bgr).render(0.0).image, swapped, cv::COLOR_BGR2RGB);
+      EXPECT_EQ(cv::norm(swapped, on.image, cv::NORM_INF), 0.0);
+    }
+  }
+  // The NIR dot over the red one on the same monochrome camera: 1.25 (the
+  // rock's NIR / red reflectance) in the truth's peak.
+  sls::SimulatorParams c = plainNoiseFree();
+  c.sensor.output = sls::SensorOutput::kMono8;
+  c.projector.color = sls::ProjectorColor::kRed;
+  c.projector.wavelength_nm = 638.0;
+  const sls::SimFrame red = sls::Simulator(c).render(0.0);
+  c.projector.color = sls::ProjectorColor::kNir;
+  c.projector.wavelength_nm = 850.0;
+  const sls::SimFrame nir = sls::Simulator(c).render(0.0);
+  // (Within 1 %: 850 nm diffracts more than 638 nm, which spreads the peak by 0.4 %.)
+  EXPECT_NEAR(nir.peak_dn[55] / red.peak_dn[55], 1.25, 0.0125);
+  // Refused: an NIR projector on a colour camera, a wavelength out of its colour's band.
+  c.sensor.output = sls::SensorOutput::kBayerRggb8;
+  EXPECT_NE(c.validate().find("IR-cut"), std::string::npos) << c.validate();
+  c = sls::SimulatorParams();
+  c.projector.color = sls::ProjectorColor::kRed;
+  EXPECT_NE(c.validate().find("band"), std::string::npos) << c.validate();
+}
+
+TEST(Simulator, FullWellClipsAndColumnBloomingConservesCharge)
+{
+  // Very bright dots at night on a monochrome 16-bit camera, noise-free: the
+  // charge over the full well is lost (no blooming) or spills along the
+  // column (a frame-transfer CCD); spilled charge is conserved, so the
+  // image's total equals the noise-free signal's (while no spill reaches the
+  // frame's edge), and the bloomed streaks are taller than wide.
+  sls::SimulatorParams c = nightNoNoise();
+  c.sensor.camera = plainNoiseFree().sensor.camera;
+  c.rock.width_m = c.rock.height_m = 0.8;
+  c.sensor.output = sls::SensorOutput::kMono16;
+  c.projector.power_scale = 4.0;
+  c.rock.albedo_min = c.rock.albedo_max = 0.3;
+  sls::SimulatorParams bloom = c;
+  bloom.sensor.blooming = sls::Blooming::kColumn;
+  const sls::SimFrame clipped = sls::Simulator(c).render(0.0);
+  const sls::SimFrame bloomed = sls::Simulator(bloom).render(0.0);
+  const double signal = cv::sum(bloomed.linear)[0];
+  const double total_bloomed = cv::sum(bloomed.image)[0] / 257.0, total_clipped = cv::sum(clipped.image)[0] / 257.0;
+  int n_clipped = 0;
+  for (size_t b = 0; b < clipped.visible.size(); ++b)
+  {
+    if (!clipped.visible[b])
+      continue;
+    n_clipped += clipped.clipped[b];
+    const uint16_t centre = clipped.image.at<uint16_t>(cvRound(clipped.pixels[b].y), cvRound(clipped.pixels[b].x));
+    EXPECT_EQ(clipped.clipped[b] != 0, centre == 65535) << "beam " << b;
+  }
+  cv::Mat full = bloomed.image == 65535;
+  const int full_pixels = cv::countNonZero(full), full_clipped = cv::countNonZero(clipped.image == 65535);
+  std::cout << "[ MEASURE ] " << n_clipped << " clipped dots; signal " << signal << " DN, bloomed image "
+            << total_bloomed << " DN, clipped image " << total_clipped << " DN; " << full_pixels
+            << " full pixels bloomed, " << full_clipped << " clipped\n";
+  EXPECT_GT(n_clipped, 50);
+  EXPECT_NEAR(total_bloomed, signal, 1e-4 * signal);
+  EXPECT_LT(total_clipped, 0.9 * signal);
+  EXPECT_GT(full_pixels, 2 * full_clipped);
+  // Each streak runs along its column: through the dot's pixel, the run of
+  // full pixels down the column is longer than along the row.
+  auto run = [&](int u, int v, int du, int dv)
+  {
+    int n = 0;
+    for (int x = u, y = v; x >= 0 && y >= 0 && x < full.cols && y < full.rows && full.at<uint8_t>(y, x);
+         x += du, y += dv)
+      ++n;
+    return n;
+  };
+  for (size_t b = 0; b < bloomed.visible.size(); ++b)
+  {
+    if (!bloomed.visible[b] || !bloomed.clipped[b])
+      continue;
+    const int u = cvRound(bloomed.pixels[b].x), v = cvRound(bloomed.pixels[b].y);
+    EXPECT_GT(run(u, v, 0, 1) + run(u, v, 0, -1), 1.5 * (run(u, v, 1, 0) + run(u, v, -1, 0))) << "beam " << b;
+  }
+  // A full well below the 8-bit range clips the 8-bit image there.
+  c.sensor.output = sls::SensorOutput::kBgr8;
+  c.sensor.full_well_dn = 200.0;
+  double top;
+  cv::minMaxLoc(sls::Simulator(c).render(0.0).image.reshape(1), nullptr, &top);
+  EXPECT_EQ(top, 200.0);
+}

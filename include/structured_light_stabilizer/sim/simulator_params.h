@@ -62,6 +62,22 @@ struct RockParams
   uint32_t seed = 1;
 };
 
+// The projector's light (#16); docs/simulator.md, "Colours and sensor outputs".
+enum class ProjectorColor
+{
+  kGreen,  // 520 nm (the study's)
+  kRed,    // 638 nm (635-660 nm lasers)
+  kBlue,   // 450 nm
+  kNir,    // 850 nm: a monochrome camera only (a colour camera's IR-cut filter blocks it)
+  kWhite,  // broadband
+};
+
+// "green", "red", "blue", "nir", "white"; false for another name.
+bool projectorColorFromName(const std::string& name, ProjectorColor* color);
+const char* projectorColorName(ProjectorColor color);
+// The colour's nominal wavelength (white: 550 nm, for diffraction).
+double nominalWavelengthNm(ProjectorColor color);
+
 struct ProjectorParams
 {
   int rows = 10;
@@ -71,12 +87,39 @@ struct ProjectorParams
   double pitch_y_rad = 0.035;
   double roll_rad = 0.087;           // in-plane rotation of the grid (5 deg by default)
   double converge_distance_m = 1.5;  // the central beam crosses the optical axis here
-  double wavelength_nm = 520.0;
+  ProjectorColor color = ProjectorColor::kGreen;
+  double wavelength_nm = 520.0;  // within the colour's band (validate()); sets the diffraction
   // Gaussian divergence of each beam (1-sigma, rad): a dot's sigma on the rock
   // grows with its distance from the projector, so its image size stays about
   // 2 px at any depth (3 mm at 1.5 m -> 2.0 px with fx = 1011.7 px).
   double beam_sigma_rad = 0.002;
   double power_scale = 1.0;  // relative dot brightness (1 = the study's LED design)
+};
+
+// What the camera delivers (#16): the ROS image encodings.
+enum class SensorOutput
+{
+  kBgr8,
+  kRgb8,
+  kMono8,       // a monochrome camera: one channel
+  kMono16,      // the same, 16 bits: DN * 257 (the 8-bit range, and so the default full well, over 65535)
+  kBayerRggb8,  // a colour camera's raw mosaic: each pixel its own channel's signal and noise
+  kBayerBggr8,
+  kBayerGbrg8,
+  kBayerGrbg8,
+};
+
+// The sensor_msgs encoding ("bgr8", "bayer_rggb8", ...) and back.
+const char* encodingName(SensorOutput output);
+bool sensorOutputFromEncoding(const std::string& encoding, SensorOutput* output);
+bool isMonochrome(SensorOutput output);
+bool isBayer(SensorOutput output);
+
+// What a pixel's charge above the full well does.
+enum class Blooming
+{
+  kNone,    // it is lost (an anti-blooming drain): the pixel clips at the full well
+  kColumn,  // it spills along the column, half up, half down, into pixels with room (a frame-transfer CCD)
 };
 
 struct SensorParams
@@ -94,6 +137,12 @@ struct SensorParams
   // Natural vignetting: image irradiance falls as cos^4 of the off-axis angle
   // (the study's eq. 2.9 factor; 0.45 in the corners of this 53 deg lens).
   bool natural_vignetting = true;
+  SensorOutput output = SensorOutput::kBgr8;
+  // Charge at which a pixel is full, in DN (8-bit counts; 255 = the 8-bit
+  // range, 25.5 ke- at the default gain). Below 255 the 8-bit image clips
+  // there, before the read noise.
+  double full_well_dn = 255.0;
+  Blooming blooming = Blooming::kNone;
 };
 
 struct LightingParams
