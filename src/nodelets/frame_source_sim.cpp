@@ -109,7 +109,8 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
 // The projector's colour and the sensor's output (docs/simulator.md,
 // "Colours and sensor outputs"): ~projector_color (green | red | blue | nir |
 // white; its nominal wavelength unless ~projector_wavelength), ~sensor_output
-// (an image encoding), ~blooming (none | column), ~full_well (DN).
+// (an image encoding), ~blooming (none | column), ~full_well (DN), and the
+// motion blur's ~exposure_time (s, 0 = off) and ~exposure_samples.
 void readColourAndSensorParams(const ros::NodeHandle& pnh, const ParamReader& read,
                                const std::function<void(const std::string&)>& error, SimulatorParams* c)
 {
@@ -128,6 +129,8 @@ void readColourAndSensorParams(const ros::NodeHandle& pnh, const ParamReader& re
   else if (blooming != "none")
     error("unknown ~blooming '" + blooming + "' (none | column); using 'none'");
   read.number("full_well", &c->sensor.full_well_dn);
+  read.number("exposure_time", &c->sensor.exposure_time_s);
+  read.integer("exposure_samples", &c->sensor.exposure_samples);
 }
 
 // The named (string) scene settings and the chessboard target: ~target

@@ -12,6 +12,7 @@
 #include "brightness.h"
 #include "clutter.h"
 #include "frame_geometry.h"
+#include "motion_blur.h"
 #include "noise.h"
 #include "optics.h"
 #include "projector_dots.h"
@@ -253,14 +254,30 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
   if (sun > 0.0)
     sim::addClutterSplats(im.clutter, im.rock, g, sc, sun, &splats);
   const size_t clutter_splats = splats.size();
-  sim::renderDots(params_, projector_, im.rock, g, &frame, &splats, &dot_albedo);
+  const bool blur = sc.exposure_time_s > 0.0;
+  const sim::GeometryAt geometry = [&](double tau)
+  { return sim::FrameGeometry(im.T_rock_cam0 * (request.arm_correction * motion(tau)).inverse()); };
+  if (blur)
+  {
+    // The truth at t; the dots' light over the exposure. (Clutter patches
+    // stay at t: they are blended reflectance, not added light.)
+    std::vector<sim::Splat> unused;
+    std::vector<sim::DotAlbedo> unused_albedo;
+    sim::renderDots(params_, projector_, im.rock, g, &frame, &unused, &unused_albedo);
+    sim::renderBlurredDots(params_, projector_, im.rock, geometry, t, &splats, &dot_albedo);
+  }
+  else
+    sim::renderDots(params_, projector_, im.rock, g, &frame, &splats, &dot_albedo);
   if (im.board)
     sim::boardTruth(params_.target.chessboard, sc.camera, g, &frame.target_pose, &frame.target_corners);
   if (!request.projector_on)
     splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
   const sim::SplatRows splat_rows(std::move(splats), std::move(dot_albedo), im.rock, sc.camera.height);
 
-  const float* rock_samples = sun > 0.0 ? sim::renderRockSamples(im.rock, im.sampling, sc, g, sun) : nullptr;
+  const float* rock_samples = nullptr;
+  if (sun > 0.0)
+    rock_samples = blur ? sim::renderBlurredRock(im.rock, im.sampling, sc, geometry, t, sun)
+                        : sim::renderRockSamples(im.rock, im.sampling, sc, g, sun);
   const sim::SensorReadout readout(sc, im.spectrum.mono_weights);
   if (params_.keep_linear)
     frame.linear.create(sc.camera.height, sc.camera.width, readout.linearType());

@@ -35,6 +35,10 @@ void checkSensor(const SensorParams& sensor, std::ostringstream& why)
     why << "read_noise_dn must be >= 0; ";
   if (!finitePositive(sensor.gain_dn_per_electron))
     why << "gain_dn_per_electron must be > 0; ";
+  if (!(sensor.exposure_time_s >= 0.0 && sensor.exposure_time_s <= 1.0) || sensor.exposure_samples < 1 ||
+      sensor.exposure_samples > 64)
+    why << "exposure_time_s " << sensor.exposure_time_s << " must be in [0, 1] and exposure_samples "
+        << sensor.exposure_samples << " in [1, 64]; ";
   if (!(sensor.full_well_dn >= 1.0 && sensor.full_well_dn <= 1e6))
     why << "full_well_dn " << sensor.full_well_dn << " is outside [1, 1e6]; ";
 }

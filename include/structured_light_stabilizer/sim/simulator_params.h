@@ -143,6 +143,12 @@ struct SensorParams
   // there, before the read noise.
   double full_well_dn = 255.0;
   Blooming blooming = Blooming::kNone;
+  // Exposure-time motion blur (option; 0 = an instantaneous exposure): the
+  // frame integrates the rig's motion over this exposure, centred on the
+  // frame's time (the ground truth's instant), in exposure_samples
+  // sub-exposures of the rock (the dots take as many as their smear needs).
+  double exposure_time_s = 0.0;
+  int exposure_samples = 8;
 };
 
 struct LightingParams
