@@ -70,8 +70,6 @@ const FormatEntry& formatEntry(PixelFormat format)
   return kFormats[0];
 }
 
-const char* kColorNames[] = {"green", "red", "blue", "nir", "white"};
-
 std::string checkImage(const cv::Mat& image, PixelFormat format, const char* what)
 {
   const std::string w(what);
@@ -160,25 +158,6 @@ bool isBayer(PixelFormat format)
 bool hasColour(PixelFormat format)
 {
   return format != PixelFormat::kMono8 && format != PixelFormat::kMono16;
-}
-
-const char* projectorColorName(ProjectorColor color)
-{
-  const int i = static_cast<int>(color);
-  return i >= 0 && i < 5 ? kColorNames[i] : "unknown";
-}
-
-bool projectorColorFromName(const std::string& name, ProjectorColor* color)
-{
-  for (int i = 0; i < 5; ++i)
-  {
-    if (name == kColorNames[i])
-    {
-      *color = static_cast<ProjectorColor>(i);
-      return true;
-    }
-  }
-  return false;
 }
 
 const char* spotMethodName(SpotMethod method)

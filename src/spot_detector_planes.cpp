@@ -18,7 +18,7 @@ namespace fast_detector
 
 // The colour table. Green: the parameters (red_weight, led ratios). Red
 // (635-660 nm) and blue (450 nm): a typical colour sensor's response there
-// (about 10 % in green and 4 % in blue for red light; 20 % in green and 3 %
+// (about 10 % in green and 4 % in blue for red light; 12-20 % in green and 3 %
 // in red for blue light) and the reddish rock's ratios (r/g <= 2.2, r/b <=
 // 3; b/r <= 0.5, b/g <= 0.85).
 ColourModel colourModel(ProjectorColor color, bool colour_frame, const FastParams& p)
@@ -35,7 +35,7 @@ ColourModel colourModel(ProjectorColor color, bool colour_frame, const FastParam
       m = {true, kRed, kGreen, kBlue, 2.2, 3.0, 0.10, 0.04};
       break;
     case ProjectorColor::kBlue:
-      m = {true, kBlue, kRed, kGreen, 0.5, 0.85, 0.03, 0.20};
+      m = {true, kBlue, kRed, kGreen, 0.5, 0.85, 0.03, 0.15};
       break;
     default:
       m = {true, kGreen, kRed, kBlue, p.red_weight, 1.0, p.colour_test.led_red_ratio, p.colour_test.led_blue_ratio};

@@ -42,6 +42,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/projector_color.h"
 #include "structured_light_stabilizer/spot.h"
 
 namespace structured_light_stabilizer
@@ -87,23 +88,11 @@ bool isBayer(PixelFormat format);
 // Whether the format carries colour (Bayer, RGB and YUV do; mono does not).
 bool hasColour(PixelFormat format);
 
-// The projector's colour (~projector_color). nir and white are found by
-// intensity (a monochrome camera, or an unfiltered one that sees the
-// projector in every channel); green, red and blue by the colour of the light
-// they add to the rock on a colour camera (on a mono camera they too fall
-// back to intensity).
-enum class ProjectorColor
-{
-  kGreen = 0,
-  kRed = 1,
-  kBlue = 2,
-  kNir = 3,
-  kWhite = 4,
-};
-
-const char* projectorColorName(ProjectorColor color);
-// Parses "green", "red", "blue", "nir", "white"; false (and *color untouched) otherwise.
-bool projectorColorFromName(const std::string& name, ProjectorColor* color);
+// The projector's colour (~projector_color, projector_color.h): nir and
+// white are found by intensity (a monochrome camera, or an unfiltered one
+// that sees the projector in every channel); green, red and blue by the
+// colour of the light they add to the rock on a colour camera (on a mono
+// camera they too fall back to intensity).
 
 enum class SpotMethod
 {
