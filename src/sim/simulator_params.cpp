@@ -194,14 +194,13 @@ namespace
 struct ColorName
 {
   ProjectorColor color;
-  const char* name;
   double nominal_nm;
 };
-constexpr ColorName kColors[] = {{ProjectorColor::kGreen, "green", 520.0},
-                                 {ProjectorColor::kRed, "red", 638.0},
-                                 {ProjectorColor::kBlue, "blue", 450.0},
-                                 {ProjectorColor::kNir, "nir", 850.0},
-                                 {ProjectorColor::kWhite, "white", 550.0}};
+constexpr ColorName kColors[] = {{ProjectorColor::kGreen, 520.0},
+                                 {ProjectorColor::kRed, 638.0},
+                                 {ProjectorColor::kBlue, 450.0},
+                                 {ProjectorColor::kNir, 850.0},
+                                 {ProjectorColor::kWhite, 550.0}};
 
 struct OutputName
 {
@@ -218,25 +217,6 @@ constexpr OutputName kOutputs[] = {{SensorOutput::kBgr8, "bgr8"},
                                    {SensorOutput::kBayerGrbg8, "bayer_grbg8"}};
 
 }  // namespace
-
-bool projectorColorFromName(const std::string& name, ProjectorColor* color)
-{
-  for (const ColorName& c : kColors)
-    if (name == c.name)
-    {
-      *color = c.color;
-      return true;
-    }
-  return false;
-}
-
-const char* projectorColorName(ProjectorColor color)
-{
-  for (const ColorName& c : kColors)
-    if (c.color == color)
-      return c.name;
-  return "?";
-}
 
 double nominalWavelengthNm(ProjectorColor color)
 {

@@ -13,6 +13,7 @@
 #include <Eigen/Geometry>
 
 #include "structured_light_stabilizer/camera_model.h"
+#include "structured_light_stabilizer/projector_color.h"
 #include "structured_light_stabilizer/sim/scene_analysis.h"
 
 namespace structured_light_stabilizer
@@ -62,19 +63,13 @@ struct RockParams
   uint32_t seed = 1;
 };
 
-// The projector's light (#16); docs/simulator.md, "Colours and sensor outputs".
-enum class ProjectorColor
-{
-  kGreen,  // 520 nm (the study's)
-  kRed,    // 638 nm (635-660 nm lasers)
-  kBlue,   // 450 nm
-  kNir,    // 850 nm: a monochrome camera only (a colour camera's IR-cut filter blocks it)
-  kWhite,  // broadband
-};
-
-// "green", "red", "blue", "nir", "white"; false for another name.
-bool projectorColorFromName(const std::string& name, ProjectorColor* color);
-const char* projectorColorName(ProjectorColor color);
+// The projector's light (#16); docs/simulator.md, "Colours and sensor
+// outputs". ProjectorColor and its names (projectorColorName,
+// projectorColorFromName) are the core's, shared with the SpotDetector
+// (projector_color.h); the simulator's nominal wavelengths: green 520 nm (the
+// study's), red 638 nm (635-660 nm lasers), blue 450 nm, nir 850 nm (a
+// monochrome camera only: a colour camera's IR-cut filter blocks it), white
+// broadband.
 // The colour's nominal wavelength (white: 550 nm, for diffraction).
 double nominalWavelengthNm(ProjectorColor color);
 
