@@ -145,15 +145,18 @@ std::string spotRejection(const FramePlanes& planes, const Candidate& c, const F
 // ---------------------------------------------------------------------------
 // De-duplication and frame checks.
 
-// A dot whose saturated core splits its candidate ring into pieces gives
-// several blobs that refine to the same centre: the strongest is kept, the
-// others are marked in the returned vector.
+// A dot whose saturated core splits its candidate ring into pieces, or a
+// coarse or split seed next to a blob, gives several refinements that end on
+// the same dot: the one of the highest fitted peak is kept (a refinement that
+// grew over the dot and its surroundings has a larger flux but a lower
+// peak), the others are marked in the returned vector.
 std::vector<char> markDuplicates(const std::vector<KeptSpot>& kept)
 {
   std::vector<size_t> order(kept.size());
   for (size_t i = 0; i < order.size(); ++i)
     order[i] = i;
-  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return kept[a].fit.flux > kept[b].fit.flux; });
+  std::sort(order.begin(), order.end(),
+            [&](size_t a, size_t b) { return kept[a].fit.amplitude > kept[b].fit.amplitude; });
   std::vector<char> drop(kept.size(), 0);
   for (size_t i = 0; i < order.size(); ++i)
   {

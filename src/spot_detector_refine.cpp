@@ -32,6 +32,9 @@ namespace
 constexpr int kMaxRadius = PlaneWindow::kMaxRadius;
 constexpr int kMaxRing = 16 * kMaxRadius;
 constexpr int kMaxStride = PlaneWindow::kStride;
+// Largest ratio of the albedo under a pixel to its surroundings (a printed
+// chessboard: 16).
+constexpr double kAlphaMax = 20.0;
 
 // Calls f(dx, dy) for every pixel of the border ring of the (2H+1)^2
 // window, `thickness` pixels wide: top and bottom rows, then the left and
@@ -274,7 +277,7 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
       const int i = pw.index(dx, dy);
       double alpha = 1.0;
       if (win->normalised)
-        alpha = std::min(20.0, std::max(0.05, (win->ambient[i] + floor) / (mean_ambient + floor)));
+        alpha = std::min(kAlphaMax, std::max(1.0 / kAlphaMax, (win->ambient[i] + floor) / (mean_ambient + floor)));
       v[dx + H] = static_cast<float>(win->added[i] / alpha);
     }
     for (int k = 2 * H + 1; k < win->stride; ++k)
