@@ -97,6 +97,12 @@ struct Excess
 Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour& ring)
 {
   const double inv2s2 = 1.0 / (2.0 * fit.sigma * fit.sigma);
+  double gx[2 * PlaneWindow::kMaxRadius + 1], gy[2 * PlaneWindow::kMaxRadius + 1];
+  for (int d = -w.H; d <= w.H; ++d)
+  {
+    gx[d + w.H] = std::exp(-detail::square(w.cx + d - fit.x) * inv2s2);
+    gy[d + w.H] = std::exp(-detail::square(w.cy + d - fit.y) * inv2s2);
+  }
   Excess e;
   for (int dy = -w.H; dy <= w.H; ++dy)
     for (int dx = -w.H; dx <= w.H; ++dx)
@@ -104,7 +110,7 @@ Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour
       const int i = w.index(dx, dy);
       if ((w.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) != PlaneWindow::kSample)
         continue;
-      const double weight = std::exp(-(detail::square(w.cx + dx - fit.x) + detail::square(w.cy + dy - fit.y)) * inv2s2);
+      const double weight = gx[dx + w.H] * gy[dy + w.H];
       double s, r, t;
       if (w.ambient)
       {

@@ -189,8 +189,6 @@ struct WeightWindow
   bool normalised = false;
   bool any_clipped = false;
   alignas(16) float vals[PlaneWindow::kSize];
-  float added[PlaneWindow::kSize];     // the dot's added light (DN), before the albedo
-  float ambient[PlaneWindow::kSize];   // the ambient light in the signal channel (DN)
   uint8_t usable[PlaneWindow::kSize];  // a sample, not clipped, not next to a clipped pixel (blooming)
 };
 

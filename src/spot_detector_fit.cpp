@@ -4,6 +4,7 @@
 // blooming, not the beam: the Gauss-weighted centroid of the plateau is
 // pulled wherever the plateau is wider, the flanks are not.
 #include <cmath>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -22,112 +23,162 @@ struct Model
   double a, x, y, s;  // amplitude, centre (pixels of the frame), sigma
 };
 
-// Normal equations of the residuals v - a exp(-r^2 / 2 s^2) over the
-// window's usable pixels (always the same set, so that sums of squares of
-// different models compare), and their sum of squares.
-double normalEquations(const WeightWindow& w, const Model& m, cv::Matx44d* JtJ, cv::Vec4d* Jtr, int* used)
+// The window's usable pixels (always the same set, so that sums of squares
+// of different models compare), by offset from the window's centre.
+struct Samples
 {
-  *JtJ = cv::Matx44d::zeros();
-  *Jtr = cv::Vec4d::all(0.0);
-  *used = 0;
-  double ss = 0;
-  const double inv_s2 = 1.0 / (m.s * m.s);
+  int cx = 0, cy = 0, H = 0;
+  std::vector<int> dx, dy;
+  std::vector<double> v;
+};
+
+// Those within `radius` of (x, y) only: farther out a dot adds nothing but
+// noise (and a neighbour's flank). Into *s, whose buffers are reused.
+void usableSamples(const WeightWindow& w, double x, double y, double radius, Samples* s)
+{
+  s->cx = w.cx;
+  s->cy = w.cy;
+  s->H = w.H;
+  s->dx.clear();
+  s->dy.clear();
+  s->v.clear();
+  const double r2 = radius * radius;
   for (int dy = -w.H; dy <= w.H; ++dy)
     for (int dx = -w.H; dx <= w.H; ++dx)
     {
       const int i = (dy + w.H) * w.stride + dx + w.H;
-      const double ex = w.cx + dx - m.x, ey = w.cy + dy - m.y, r2 = ex * ex + ey * ey;
-      if (!w.usable[i])
+      if (!w.usable[i] || detail::square(w.cx + dx - x) + detail::square(w.cy + dy - y) > r2)
         continue;
-      const double g = std::exp(-0.5 * r2 * inv_s2);
-      const double res = w.vals[i] - m.a * g;
-      const cv::Vec4d J(g, m.a * g * ex * inv_s2, m.a * g * ey * inv_s2, m.a * g * r2 * inv_s2 / m.s);
-      *JtJ += J * J.t();
-      *Jtr += J * res;
-      ss += res * res;
-      ++*used;
+      s->dx.push_back(dx);
+      s->dy.push_back(dy);
+      s->v.push_back(w.vals[i]);
     }
+}
+
+// The separable Gaussian of a model over the window: g(dx, dy) = gx[dx + H] gy[dy + H].
+struct Profile
+{
+  double gx[2 * PlaneWindow::kMaxRadius + 1], gy[2 * PlaneWindow::kMaxRadius + 1];
+  Profile(const Samples& s, const Model& m)
+  {
+    const double k = -0.5 / (m.s * m.s);
+    for (int d = -s.H; d <= s.H; ++d)
+    {
+      gx[d + s.H] = std::exp(k * detail::square(s.cx + d - m.x));
+      gy[d + s.H] = std::exp(k * detail::square(s.cy + d - m.y));
+    }
+  }
+  double at(const Samples& s, size_t i) const { return gx[s.dx[i] + s.H] * gy[s.dy[i] + s.H]; }
+};
+
+// Normal equations of the residuals v - a exp(-r^2 / 2 s^2) and their sum
+// of squares (the ten distinct terms of J^T J accumulated by hand: this runs
+// a few times per iteration for every clipped dot).
+double normalEquations(const Samples& s, const Model& m, cv::Matx44d* JtJ, cv::Vec4d* Jtr)
+{
+  const Profile p(s, m);
+  const double inv_s2 = 1.0 / (m.s * m.s);
+  double a[10] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0}, b[4] = {0, 0, 0, 0}, ss = 0;
+  for (size_t i = 0; i < s.v.size(); ++i)
+  {
+    const double ex = s.cx + s.dx[i] - m.x, ey = s.cy + s.dy[i] - m.y;
+    const double g = p.at(s, i), ag = m.a * g;
+    const double res = s.v[i] - ag;
+    const double j0 = g, j1 = ag * ex * inv_s2, j2 = ag * ey * inv_s2, j3 = ag * (ex * ex + ey * ey) * inv_s2 / m.s;
+    a[0] += j0 * j0;
+    a[1] += j0 * j1;
+    a[2] += j0 * j2;
+    a[3] += j0 * j3;
+    a[4] += j1 * j1;
+    a[5] += j1 * j2;
+    a[6] += j1 * j3;
+    a[7] += j2 * j2;
+    a[8] += j2 * j3;
+    a[9] += j3 * j3;
+    b[0] += j0 * res;
+    b[1] += j1 * res;
+    b[2] += j2 * res;
+    b[3] += j3 * res;
+    ss += res * res;
+  }
+  *JtJ = cv::Matx44d(a[0], a[1], a[2], a[3], a[1], a[4], a[5], a[6], a[2], a[5], a[7], a[8], a[3], a[6], a[8], a[9]);
+  *Jtr = cv::Vec4d(b[0], b[1], b[2], b[3]);
   return ss;
 }
 
-// The amplitude that fits best for a given centre and sigma (linear).
-double bestAmplitude(const WeightWindow& w, const Model& m)
+// The amplitude that fits best for the model's centre and sigma (linear),
+// and the sum of squares it leaves.
+double bestAmplitude(const Samples& s, Model* m)
 {
-  double vg = 0, gg = 0;
-  const double inv_s2 = 1.0 / (m.s * m.s);
-  for (int dy = -w.H; dy <= w.H; ++dy)
-    for (int dx = -w.H; dx <= w.H; ++dx)
-    {
-      const int i = (dy + w.H) * w.stride + dx + w.H;
-      if (!w.usable[i])
-        continue;
-      const double g = std::exp(-0.5 * (detail::square(w.cx + dx - m.x) + detail::square(w.cy + dy - m.y)) * inv_s2);
-      vg += w.vals[i] * g;
-      gg += g * g;
-    }
-  return gg > 0 ? vg / gg : 0.0;
+  const Profile p(s, *m);
+  double vg = 0, gg = 0, vv = 0;
+  for (size_t i = 0; i < s.v.size(); ++i)
+  {
+    const double g = p.at(s, i);
+    vg += s.v[i] * g;
+    gg += g * g;
+    vv += s.v[i] * s.v[i];
+  }
+  m->a = gg > 0 ? vg / gg : 0.0;
+  return gg > 0 ? vv - vg * vg / gg : detail::kInf;
 }
 
-// Levenberg-Marquardt on (a, x, y, s) from m; false when it cannot start.
-bool levenbergMarquardt(const WeightWindow& w, Model* model, double* sum_sq)
+// Levenberg-Marquardt on (a, x, y, s) from m (whose amplitude is set).
+double levenbergMarquardt(const Samples& samples, Model* model)
 {
   Model& m = *model;
-  m.a = bestAmplitude(w, m);
-  if (!(m.a > 0))
-    return false;
   double lambda = 1e-3;
   cv::Matx44d JtJ;
   cv::Vec4d Jtr;
-  int used = 0;
-  double ss = normalEquations(w, m, &JtJ, &Jtr, &used);
-  bool converged = false;
-  for (int it = 0; it < 30 && !converged; ++it)
+  double ss = normalEquations(samples, m, &JtJ, &Jtr);
+  for (int it = 0; it < 30; ++it)
   {
-    if (used < 8)
-      return false;
     cv::Matx44d A = JtJ;
     for (int k = 0; k < 4; ++k)
       A(k, k) *= 1.0 + lambda;
     cv::Vec4d step;
     if (!cv::solve(A, Jtr, step, cv::DECOMP_CHOLESKY))
-      return false;
+      break;
     const Model trial{m.a + step[0], m.x + step[1], m.y + step[2], m.s + step[3]};
     cv::Matx44d JtJ2;
     cv::Vec4d Jtr2;
-    int used2 = 0;
-    const double ss2 = trial.s > 0.3 && trial.a > 0 ? normalEquations(w, trial, &JtJ2, &Jtr2, &used2) : detail::kInf;
-    if (ss2 <= ss && used2 >= 8)
+    const double ss2 = trial.s > 0.3 && trial.a > 0 ? normalEquations(samples, trial, &JtJ2, &Jtr2) : detail::kInf;
+    if (ss2 <= ss)
     {
-      converged = std::hypot(step[1], step[2]) < 1e-4 && std::abs(step[3]) < 1e-4;
       m = trial;
       ss = ss2;
       JtJ = JtJ2;
       Jtr = Jtr2;
-      used = used2;
       lambda = std::max(1e-6, lambda * 0.3);
+      // Far below the noise of a centroid (a few thousandths of a pixel).
+      if (std::hypot(step[1], step[2]) < 2e-4 && std::abs(step[3]) < 1e-3)
+        break;
     }
-    else
+    else if ((lambda *= 10.0) > 1e6)
     {
-      lambda *= 10.0;
-      converged = lambda > 1e6;
+      break;
     }
   }
-  *sum_sq = ss;
-  return true;
+  return ss;
 }
 }  // namespace
 
-// From the centroid's estimate, with three starting sigmas (a clipped
-// plateau inflates the centroid's): the best fit wins.
+// From the centroid's estimate: of three starting sigmas (a clipped plateau
+// inflates the centroid's) the one whose best amplitude fits best starts the
+// iterations.
 bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit)
 {
+  thread_local Samples samples;  // buffers kept across calls
+  usableSamples(w, fit->x, fit->y, 3.0 * fit->sigma + 2.0, &samples);
+  if (samples.v.size() < 8)
+    return false;
   Model best{0, 0, 0, 0};
   double best_ss = detail::kInf;
   for (double f : {1.0, 0.7, 1.4})
   {
     Model m{0, fit->x, fit->y, std::max(0.8, f * fit->sigma)};
-    double ss;
-    if (levenbergMarquardt(w, &m, &ss) && ss < best_ss)
+    const double ss = bestAmplitude(samples, &m);
+    if (m.a > 0 && ss < best_ss)
     {
       best = m;
       best_ss = ss;
@@ -135,7 +186,8 @@ bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit)
   }
   if (!std::isfinite(best_ss))
     return false;
-  const Model& m = best;
+  Model m = best;
+  levenbergMarquardt(samples, &m);
   // The fit must stay in its window (a bloom streak can pull the centroid
   // along the column by several pixels, so not necessarily near it) and keep
   // a dot's size.

@@ -173,7 +173,8 @@ inline double ambientValue(const PlaneWindow& w, int i, double added)
 
 // Marks as unusable for the Gaussian fit the clipped pixels and their four
 // neighbours (blooming leaves the last, partly filled pixel next to a clipped
-// one, and OpenCV-style demosaicing spreads clipping by one pixel).
+// one, and OpenCV-style demosaicing spreads clipping by one pixel). Only a
+// window with a clipped pixel needs the neighbours looked at.
 void markUsable(const PlaneWindow& pw, WeightWindow* win)
 {
   const int H = pw.H;
@@ -181,47 +182,35 @@ void markUsable(const PlaneWindow& pw, WeightWindow* win)
   for (int dy = -H; dy <= H; ++dy)
     for (int dx = -H; dx <= H; ++dx)
     {
-      const int i = pw.index(dx, dy);
-      bool bad = (pw.flags[i] & PlaneWindow::kClipped) != 0;
-      win->any_clipped = win->any_clipped || bad;
-      for (int k = 0; k < 4 && !bad; ++k)
-      {
-        const int nx = dx + (k == 0) - (k == 1), ny = dy + (k == 2) - (k == 3);
-        bad = std::abs(nx) <= H && std::abs(ny) <= H && (pw.flags[pw.index(nx, ny)] & PlaneWindow::kClipped);
-      }
-      win->usable[i] = static_cast<uint8_t>(!bad && (pw.flags[i] & PlaneWindow::kSample));
+      const uint8_t f = pw.flags[pw.index(dx, dy)];
+      win->usable[pw.index(dx, dy)] = static_cast<uint8_t>((f & PlaneWindow::kSample) != 0);
+      win->any_clipped = win->any_clipped || (f & PlaneWindow::kClipped);
     }
-}
-
-// The ambient light of the window smoothed by a 3 x 3 binomial over the
-// signal's samples: its noise drops 2.7 times while 1-3 cm texture (7-20 px
-// at 1-2 m) keeps most of its contrast.
-void smoothAmbient(const PlaneWindow& pw, float* ambient, float* scratch)
-{
-  const int H = pw.H;
+  if (!win->any_clipped)
+    return;
   for (int dy = -H; dy <= H; ++dy)
     for (int dx = -H; dx <= H; ++dx)
     {
-      double sum = 0, wsum = 0;
-      for (int ey = -1; ey <= 1; ++ey)
-        for (int ex = -1; ex <= 1; ++ex)
-        {
-          const int x = dx + ex, y = dy + ey;
-          if (std::abs(x) > H || std::abs(y) > H || !(pw.flags[pw.index(x, y)] & PlaneWindow::kSample))
-            continue;
-          const double w = (2 - std::abs(ex)) * (2 - std::abs(ey));
-          sum += w * ambient[pw.index(x, y)];
-          wsum += w;
-        }
-      scratch[pw.index(dx, dy)] = static_cast<float>(wsum > 0 ? sum / wsum : ambient[pw.index(dx, dy)]);
+      if (!(pw.flags[pw.index(dx, dy)] & PlaneWindow::kClipped))
+        continue;
+      win->usable[pw.index(dx, dy)] = 0;
+      if (dx > -H)
+        win->usable[pw.index(dx - 1, dy)] = 0;
+      if (dx < H)
+        win->usable[pw.index(dx + 1, dy)] = 0;
+      if (dy > -H)
+        win->usable[pw.index(dx, dy - 1)] = 0;
+      if (dy < H)
+        win->usable[pw.index(dx, dy + 1)] = 0;
     }
-  std::copy(scratch, scratch + (2 * H + 1) * pw.stride, ambient);
 }
 
 // The weight field of a filled PlaneWindow: P = (base - plane) * gain, the
-// dot's added light; divided by alpha = (A + floor) / (mean A + floor), the
-// albedo relative to the border's, where the ambient A is known and bright
-// enough (mean A >= 2 floor: by night there is nothing to normalise by).
+// dot's added light (base = signal - the ambient frame's signal, or signal -
+// kappa reference); divided by alpha = (A + floor) / (mean A + floor), the
+// albedo relative to the border's, where the ambient A (the ambient frame's
+// signal, or signal - P) is known and bright enough (mean A >= 2 floor: by
+// night there is nothing to normalise by). One pass over the window.
 void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineSettings& rs, WeightWindow* win)
 {
   const int H = pw.H;
@@ -251,44 +240,48 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
           });
   const Plane plane = robustPlane(samples, n, &win->noise);
   win->background = n ? signal_sum / n : 0.0;
-  // Added light and ambient per pixel (samples only).
-  for (int dy = -H; dy <= H; ++dy)
-    for (int dx = -H; dx <= H; ++dx)
-    {
-      const int i = pw.index(dx, dy);
-      const bool sample = pw.flags[i] & PlaneWindow::kSample;
-      win->added[i] = sample ? static_cast<float>((baseValue(pw, i, d) - plane.at(dx, dy)) * d.gain) : 0.0f;
-      win->ambient[i] = sample ? static_cast<float>(ambientValue(pw, i, win->added[i])) : 0.0f;
-    }
-  if (d.ambient_known)
-    smoothAmbient(pw, win->ambient, win->vals);
   double ambient_sum = 0;
   for (int k = 0; k < n; ++k)
-    ambient_sum += win->ambient[pw.index(samples[k].dx, samples[k].dy)];
+    ambient_sum += ambientValue(pw, pw.index(samples[k].dx, samples[k].dy),
+                                (samples[k].v - plane.at(samples[k].dx, samples[k].dy)) * d.gain);
   // The floor regularises the ratio where the ambient is dark: at least the
   // noise of the border (which the ambient estimate shares).
   const double mean_ambient = n ? ambient_sum / n : 0.0, floor = std::max(rs.albedo_floor_dn, win->noise);
   win->normalised = rs.normalise_albedo && d.ambient_known && mean_ambient >= 2.0 * floor;
+  // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
+  const float* other = pw.ambient ? pw.ambient_signal : pw.reference;
+  const float c = pw.ambient ? 1.0f : static_cast<float>(d.kappa), gain = static_cast<float>(d.gain);
+  const float inv_mean = static_cast<float>(1.0 / (mean_ambient + floor)), fl = static_cast<float>(floor);
+  const float lo = static_cast<float>(1.0 / kAlphaMax), hi = static_cast<float>(kAlphaMax);
+  int samples_in = 0;
   for (int dy = -H; dy <= H; ++dy)
   {
-    float* v = win->vals + (dy + H) * win->stride;
-    for (int dx = -H; dx <= H; ++dx)
+    const int row = pw.index(-H, dy);
+    float* v = win->vals + row;
+    const float p0 = static_cast<float>(plane.a + plane.by * dy - plane.bx * H), pbx = static_cast<float>(plane.bx);
+    for (int k = 0; k <= 2 * H; ++k)
     {
-      const int i = pw.index(dx, dy);
-      double alpha = 1.0;
+      const int i = row + k;
+      if (!(pw.flags[i] & PlaneWindow::kSample))
+      {
+        v[k] = 0.0f;
+        continue;
+      }
+      ++samples_in;
+      const float added = (pw.signal[i] - c * other[i] - (p0 + pbx * k)) * gain;
+      float alpha = 1.0f;
       if (win->normalised)
-        alpha = std::min(kAlphaMax, std::max(1.0 / kAlphaMax, (win->ambient[i] + floor) / (mean_ambient + floor)));
-      v[dx + H] = static_cast<float>(win->added[i] / alpha);
+      {
+        const float ambient = pw.ambient ? pw.ambient_signal[i] : pw.signal[i] - added;
+        alpha = std::min(hi, std::max(lo, (ambient + fl) * inv_mean));
+      }
+      v[k] = added / alpha;
     }
     for (int k = 2 * H + 1; k < win->stride; ++k)
       v[k] = 0.0f;
   }
+  win->density = samples_in / detail::square(2.0 * H + 1.0);
   markUsable(pw, win);
-  int samples_in = 0;
-  for (int i = 0; i < (2 * H + 1); ++i)
-    for (int j = 0; j < (2 * H + 1); ++j)
-      samples_in += pw.flags[i * pw.stride + j] & PlaneWindow::kSample;
-  win->density = double(samples_in) / detail::square(2.0 * H + 1.0);
 }
 
 // ---------------------------------------------------------------------------
@@ -432,6 +425,21 @@ void loadWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int
   buildWeights(scratch->planes, planes.model(), rs, &win);
 }
 
+// For the iterated centroid: a window that covers half size H around pixel
+// (cx, cy). The loaded one is kept while it does and is not much larger
+// (the centroid's steps are small after the first); else one is loaded with
+// a margin of 2 px, which spares most reloads.
+void coverWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int cy, int H, RefineScratch* scratch)
+{
+  const WeightWindow& win = scratch->weights;
+  const int off = std::max(std::abs(cx - win.cx), std::abs(cy - win.cy));
+  if (win.H >= 0 && H + off <= win.H && win.H <= H + 4)
+    return;
+  const int margin =
+      std::min({2, kMaxRadius - H, cx - H, cy - H, planes.frameCols() - 1 - cx - H, planes.frameRows() - 1 - cy - H});
+  loadWindow(planes, rs, cx, cy, H + std::max(0, margin), scratch);
+}
+
 // The fields of a fit that come from its window.
 void describeWindow(const WeightWindow& win, SpotFit* out)
 {
@@ -466,16 +474,18 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
   if (!std::isfinite(best))
     return false;
   // Flood fill within 2 px (a Bayer mosaic's samples of one colour are 2 px apart).
-  std::vector<uint8_t> seen(PlaneWindow::kSize, 0);
-  std::vector<cv::Point> stack{cv::Point(sx, sy)};
+  uint8_t seen[PlaneWindow::kSize] = {};
+  cv::Point stack[PlaneWindow::kSize];
+  int top = 0;
+  stack[top++] = cv::Point(sx, sy);
   seen[pw.index(sx, sy)] = 1;
   double mx = 0, my = 0;
   int n = 0, widest = 0;
-  std::vector<cv::Vec2i> row_span(2 * H + 1, cv::Vec2i(1 << 20, -(1 << 20)));
-  while (!stack.empty())
+  cv::Vec2i row_span[2 * PlaneWindow::kMaxRadius + 1];
+  std::fill(row_span, row_span + 2 * H + 1, cv::Vec2i(1 << 20, -(1 << 20)));
+  while (top > 0)
   {
-    const cv::Point q = stack.back();
-    stack.pop_back();
+    const cv::Point q = stack[--top];
     mx += q.x;
     my += q.y;
     ++n;
@@ -487,7 +497,7 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
         if (clipped(q.x + ex, q.y + ey) && !seen[pw.index(q.x + ex, q.y + ey)])
         {
           seen[pw.index(q.x + ex, q.y + ey)] = 1;
-          stack.emplace_back(q.x + ex, q.y + ey);
+          stack[top++] = cv::Point(q.x + ex, q.y + ey);  // each pixel once: fits
         }
   }
   *centre = cv::Point2d(pw.cx + mx / n, pw.cy + my / n);
@@ -520,7 +530,7 @@ bool refineClipped(const FramePlanes& planes, const RefineSettings& rs, double x
     const int H = windowRadius(planes, cx, cy, reach, fit.sigma, rs.max_sigma);
     if (H < 2)
       return false;
-    loadWindow(planes, rs, cx, cy, H, scratch);
+    coverWindow(planes, rs, cx, cy, H, scratch);
     if (!fitGaussian(win, rs.max_sigma, &fit))
       return false;
     if (std::hypot(fit.x - cx, fit.y - cy) < 1.0)
@@ -558,7 +568,10 @@ bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, 
     const int H = windowRadius(planes, cx, cy, fixed_radius, sw, max_sigma);
     if (H < 2)
       return false;
-    loadWindow(planes, rs, cx, cy, H, scratch);
+    if (fixed_radius > 0)
+      loadWindow(planes, rs, cx, cy, H, scratch);
+    else
+      coverWindow(planes, rs, cx, cy, H, scratch);
     if (it == 0 && clippedNear(win, x0, y0, sigma0))
       return refineClipped(planes, rs, x0, y0, sigma0, fixed_radius, scratch, out);
     const Moments m = gaussianMoments(win, xc, yc, sw);

@@ -140,25 +140,54 @@ inline void scalarCell(const int* rgb, const ColourModel& model, int k_ref, int 
     markCell(runs, y, x);
 }
 
+// Which Scale modes a pass's weights allow (see below).
+inline int passModes(int k_ref, int k_third)
+{
+  if (k_ref <= 256 && k_third == 256)
+    return 0;
+  return k_ref <= 256 && k_third <= 256 ? 1 : 2;
+}
+
 #if CV_SIMD128
-// (k x) >> 8 for 16 values, k in 1/256 up to 4 (k = 256 hi + lo), saturated
-// at 255: the same as the scalar (k * x) >> 8 below 256.
+// (k x) >> 8 for 16 values, k in 1/256 up to 4 (k = 256 hi + lo),
+// saturated at 255: the same as the scalar (k * x) >> 8 below 256. kMode 0:
+// k = 256 (nothing to do), 1: k <= 256 (one 16-bit product), 2: any k. The
+// colour table's weights keep the green pass at modes 1 and 0, as cheap as
+// a plain greenness: the pass stays at the memory bandwidth limit.
 struct Scale
 {
-  cv::v_uint16x8 hi, lo;
-  explicit Scale(int k)
-    : hi(cv::v_setall_u16(static_cast<uint16_t>(k >> 8))), lo(cv::v_setall_u16(static_cast<uint16_t>(k & 255)))
+  cv::v_uint16x8 k, hi, lo;
+  explicit Scale(int w)
+    : k(cv::v_setall_u16(static_cast<uint16_t>(std::min(w, 256)))),
+      hi(cv::v_setall_u16(static_cast<uint16_t>(w >> 8))),
+      lo(cv::v_setall_u16(static_cast<uint16_t>(w & 255)))
   {
   }
-  cv::v_uint8x16 operator()(const cv::v_uint8x16& x) const
+  template <int kMode>
+  cv::v_uint8x16 apply(const cv::v_uint8x16& x) const
   {
+    if (kMode == 0)
+      return x;
     cv::v_uint16x8 a, b;
     cv::v_expand(x, a, b);
+    if (kMode == 1)
+      return cv::v_pack(cv::v_shr<8>(cv::v_mul_wrap(a, k)), cv::v_shr<8>(cv::v_mul_wrap(b, k)));
     a = cv::v_mul_wrap(a, hi) + cv::v_shr<8>(cv::v_mul_wrap(a, lo));
     b = cv::v_mul_wrap(b, hi) + cv::v_shr<8>(cv::v_mul_wrap(b, lo));
     return cv::v_pack(a, b);
   }
 };
+
+// Scale modes of the reference and the third channel for a pass (kModes
+// 0: 1 and 0, 1: 1 and 1, 2: 2 and 2; see Scale).
+constexpr int refMode(int modes)
+{
+  return modes == 2 ? 2 : 1;
+}
+constexpr int thirdMode(int modes)
+{
+  return modes == 0 ? 0 : modes == 1 ? 1 : 2;
+}
 
 // (a + b + 1) >> 1 for 16 values (the rounded mean of a Bayer cell's greens).
 inline cv::v_uint8x16 average(const cv::v_uint8x16& a, const cv::v_uint8x16& b)
@@ -194,7 +223,7 @@ inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y
 
 // Interleaved 8-bit colour: kS, kR, kT are the byte offsets of the signal,
 // reference and third channels in a pixel of kC bytes.
-template <int kC, int kS, int kR, int kT>
+template <int kC, int kS, int kR, int kT, int kModes>
 void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& model, int k_ref, int k_third,
                     int threshold, std::vector<Run>* runs, uint16_t* acc)
 {
@@ -209,7 +238,8 @@ void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& mod
       cv::v_load_deinterleave(row + 3 * x, c[0], c[1], c[2]);
     else
       cv::v_load_deinterleave(row + 4 * x, c[0], c[1], c[2], c[3]);
-    emit(c[kS] - cv::v_max(scale_ref(c[kR]), scale_third(c[kT])), vthr, y, x, runs, acc);
+    emit(c[kS] - cv::v_max(scale_ref.apply<refMode(kModes)>(c[kR]), scale_third.apply<thirdMode(kModes)>(c[kT])), vthr,
+         y, x, runs, acc);
   }
 #endif
   for (; x < width; ++x)
@@ -225,7 +255,7 @@ void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& mod
 
 // Bayer: kPattern 0..3 = rggb, bggr, gbrg, grbg; kColour = the signal channel
 // (green: reference red, third blue; red: green, blue; blue: red, green).
-template <int kPattern, int kColour>
+template <int kPattern, int kColour, int kModes>
 void bayerRow(const cv::Mat& m, PixelFormat format, int cells, int gy, const ColourModel& model, int k_ref, int k_third,
               int threshold, std::vector<Run>* runs, uint16_t* acc)
 {
@@ -247,7 +277,8 @@ void bayerRow(const cv::Mat& m, PixelFormat format, int cells, int gy, const Col
     const cv::v_uint8x16 S = kColour == kGreen ? G : kColour == kRed ? R : B;
     const cv::v_uint8x16 Ref = kColour == kGreen ? R : kColour == kRed ? G : R;
     const cv::v_uint8x16 T = kColour == kGreen ? B : kColour == kRed ? B : G;
-    emit(S - cv::v_max(scale_ref(Ref), scale_third(T)), vthr, gy, x, runs, acc);
+    emit(S - cv::v_max(scale_ref.apply<refMode(kModes)>(Ref), scale_third.apply<thirdMode(kModes)>(T)), vthr, gy, x,
+         runs, acc);
   }
 #endif
   for (; x < cells; ++x)
@@ -263,52 +294,70 @@ using InterleavedPass = void (*)(const uint8_t*, int, int, const ColourModel&, i
 using BayerPass = void (*)(const cv::Mat&, PixelFormat, int, int, const ColourModel&, int, int, int, std::vector<Run>*,
                            uint16_t*);
 
-// Offsets (s, r, t) of the colours green, red, blue: [red first][colour].
-template <int kC>
-InterleavedPass interleavedPass(bool red_first, int signal)
+// Offsets (s, r, t) of the colours red, green, blue (indexed by the signal
+// channel), blue-first and red-first byte orders.
+template <int kC, int kModes>
+InterleavedPass interleavedPassOf(bool red_first, int signal)
 {
-  static const InterleavedPass kBgr[3] = {&interleavedRow<kC, 2, 1, 0>, &interleavedRow<kC, 1, 2, 0>,
-                                          &interleavedRow<kC, 0, 2, 1>};
-  static const InterleavedPass kRgb[3] = {&interleavedRow<kC, 0, 1, 2>, &interleavedRow<kC, 1, 0, 2>,
-                                          &interleavedRow<kC, 2, 0, 1>};
-  return (red_first ? kRgb : kBgr)[signal];  // indexed by the signal channel: kRed, kGreen, kBlue
+  static const InterleavedPass kBgr[3] = {&interleavedRow<kC, 2, 1, 0, kModes>, &interleavedRow<kC, 1, 2, 0, kModes>,
+                                          &interleavedRow<kC, 0, 2, 1, kModes>};
+  static const InterleavedPass kRgb[3] = {&interleavedRow<kC, 0, 1, 2, kModes>, &interleavedRow<kC, 1, 0, 2, kModes>,
+                                          &interleavedRow<kC, 2, 0, 1, kModes>};
+  return (red_first ? kRgb : kBgr)[signal];
+}
+
+template <int kC>
+InterleavedPass interleavedPass(bool red_first, int signal, int modes)
+{
+  return modes == 0   ? interleavedPassOf<kC, 0>(red_first, signal)
+         : modes == 1 ? interleavedPassOf<kC, 1>(red_first, signal)
+                      : interleavedPassOf<kC, 2>(red_first, signal);
+}
+
+template <int kPattern, int kModes>
+BayerPass bayerPassOf(int signal)
+{
+  static const BayerPass kPasses[3] = {&bayerRow<kPattern, kRed, kModes>, &bayerRow<kPattern, kGreen, kModes>,
+                                       &bayerRow<kPattern, kBlue, kModes>};
+  return kPasses[signal];
 }
 
 template <int kPattern>
-BayerPass bayerPass(int signal)
+BayerPass bayerPass(int signal, int modes)
 {
-  static const BayerPass kPasses[3] = {&bayerRow<kPattern, kRed>, &bayerRow<kPattern, kGreen>,
-                                       &bayerRow<kPattern, kBlue>};
-  return kPasses[signal];
+  return modes == 0   ? bayerPassOf<kPattern, 0>(signal)
+         : modes == 1 ? bayerPassOf<kPattern, 1>(signal)
+                      : bayerPassOf<kPattern, 2>(signal);
 }
 }  // namespace
 
 bool colourRowRuns(const cv::Mat& image, PixelFormat format, const ColourModel& model, int k_ref, int k_third,
                    int threshold, int gy, std::vector<Run>* runs, uint16_t* acc)
 {
+  const int modes = passModes(k_ref, k_third);
   switch (format)
   {
     case PixelFormat::kBgr8:
     case PixelFormat::kRgb8:
-      interleavedPass<3>(format == PixelFormat::kRgb8, model.signal)(image.ptr<uint8_t>(gy), image.cols, gy, model,
-                                                                     k_ref, k_third, threshold, runs, acc);
+      interleavedPass<3>(format == PixelFormat::kRgb8, model.signal, modes)(
+          image.ptr<uint8_t>(gy), image.cols, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBgra8:
     case PixelFormat::kRgba8:
-      interleavedPass<4>(format == PixelFormat::kRgba8, model.signal)(image.ptr<uint8_t>(gy), image.cols, gy, model,
-                                                                      k_ref, k_third, threshold, runs, acc);
+      interleavedPass<4>(format == PixelFormat::kRgba8, model.signal, modes)(
+          image.ptr<uint8_t>(gy), image.cols, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBayerRggb8:
-      bayerPass<0>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      bayerPass<0>(model.signal, modes)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBayerBggr8:
-      bayerPass<1>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      bayerPass<1>(model.signal, modes)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBayerGbrg8:
-      bayerPass<2>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      bayerPass<2>(model.signal, modes)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBayerGrbg8:
-      bayerPass<3>(model.signal)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
+      bayerPass<3>(model.signal, modes)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     default:
       return false;

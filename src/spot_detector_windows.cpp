@@ -55,6 +55,42 @@ void FramePlanes::fillPixel(const cv::Mat& m, int x, int y, float* s, float* r, 
   *t = static_cast<float>(rgb[model_.third]);
 }
 
+namespace
+{
+// The fast path of fillWindow for interleaved 8-bit colour frames (the
+// common case): the planes straight from the rows.
+void fillInterleaved(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
+                     PlaneWindow* w, float* s, float* r, float* t, bool ambient)
+{
+  const pixels::Interleaved L = pixels::interleavedLayout(format);
+  const int offset[3] = {L.r, L.g, L.b};
+  const int so = offset[model.signal], ro = offset[model.reference], to = offset[model.third];
+  const int H = w->H;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const uint8_t* px = m.ptr<uint8_t>(cy + dy) + (cx - H) * L.bytes;
+    const int row = w->index(-H, dy);
+    for (int k = 0; k <= 2 * H; ++k, px += L.bytes)
+    {
+      s[row + k] = px[so];
+      r[row + k] = px[ro];
+      t[row + k] = px[to];
+      const bool clipped = px[0] >= saturation || px[1] >= saturation || px[2] >= saturation;
+      if (ambient)
+        w->flags[row + k] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[row + k] = static_cast<uint8_t>(PlaneWindow::kSample | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
+bool isInterleaved(PixelFormat format)
+{
+  return format == PixelFormat::kBgr8 || format == PixelFormat::kRgb8 || format == PixelFormat::kBgra8 ||
+         format == PixelFormat::kRgba8;
+}
+}  // namespace
+
 void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
 {
   w->cx = cx;
@@ -64,6 +100,14 @@ void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
   w->colour = model_.colour;
   w->ambient = !ambient_.empty();
   w->ring = isBayer(format_) ? 2 : 1;
+  if (model_.colour && isInterleaved(format_))
+  {
+    fillInterleaved(image_, format_, model_, saturation_, cx, cy, w, w->signal, w->reference, w->third, false);
+    if (w->ambient)
+      fillInterleaved(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
+                      w->ambient_third, true);
+    return;
+  }
   for (int dy = -H; dy <= H; ++dy)
   {
     for (int dx = -H; dx <= H; ++dx)
