@@ -115,10 +115,11 @@ namespace rows
 // SIMD row passes of the threshold pass, 16 cells at a time; both append the
 // runs of candidate cells of grid row gy and are exact equivalents of the
 // generic scoring (FramePlanes::scoreRow). colourRowRuns: interleaved 8-bit
-// colour and Bayer frames, colour path; false for other formats (the caller
-// then scores generically). acc (may be null) accumulates the scores.
-bool colourRowRuns(const cv::Mat& image, PixelFormat format, const ColourModel& model, int k_ref, int k_third,
-                   int threshold, int gy, std::vector<Run>* runs, uint16_t* acc);
+// colour frames (with or without an ambient frame: empty = none) and Bayer
+// frames without one, colour path; false for the others (the caller then
+// scores generically). acc (may be null) accumulates the scores.
+bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
+                   int k_ref, int k_third, int threshold, int gy, std::vector<Run>* runs, uint16_t* acc);
 // mono8 intensity path: candidate where 16 v - level >= threshold, both
 // constant over blocks of `block` pixels (level[], threshold[] per block).
 void monoRowRuns(const uint8_t* row, int width, int y, int block, const int* level, const int* threshold,

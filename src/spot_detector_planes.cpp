@@ -100,6 +100,8 @@ int FramePlanes::thresholdOf(int gx, int gy) const
 
 int FramePlanes::cellScore(int gx, int gy) const
 {
+  if (format_ == PixelFormat::kMono8 && ambient_.empty())  // the mono camera's hot path
+    return 16 * image_.ptr<uint8_t>(gy)[gx] - levelOf(gx, gy);
   Triple t = cellAt(image_, gx, gy);
   if (model_.colour)
   {
@@ -189,10 +191,10 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
 
 bool FramePlanes::fusedRowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
 {
+  if (model_.colour)
+    return rows::colourRowRuns(image_, ambient_, format_, model_, k_ref_, k_third_, threshold_, gy, runs, acc);
   if (!ambient_.empty())
     return false;
-  if (model_.colour)
-    return rows::colourRowRuns(image_, format_, model_, k_ref_, k_third_, threshold_, gy, runs, acc);
   if (format_ == PixelFormat::kMono8)
   {
     const int* level = block_level_.ptr<int>(gy / kBlock);

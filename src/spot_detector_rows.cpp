@@ -224,8 +224,8 @@ inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y
 // Interleaved 8-bit colour: kS, kR, kT are the byte offsets of the signal,
 // reference and third channels in a pixel of kC bytes.
 template <int kC, int kS, int kR, int kT, int kModes>
-void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& model, int k_ref, int k_third,
-                    int threshold, std::vector<Run>* runs, uint16_t* acc)
+void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y, const ColourModel& model, int k_ref,
+                    int k_third, int threshold, std::vector<Run>* runs, uint16_t* acc)
 {
   int x = 0;
 #if CV_SIMD128
@@ -238,6 +238,16 @@ void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& mod
       cv::v_load_deinterleave(row + 3 * x, c[0], c[1], c[2]);
     else
       cv::v_load_deinterleave(row + 4 * x, c[0], c[1], c[2], c[3]);
+    if (ambient)  // the added light: frame - ambient, saturating at 0 (as the scalar score)
+    {
+      cv::v_uint8x16 a[4];
+      if (kC == 3)
+        cv::v_load_deinterleave(ambient + 3 * x, a[0], a[1], a[2]);
+      else
+        cv::v_load_deinterleave(ambient + 4 * x, a[0], a[1], a[2], a[3]);
+      for (int k = 0; k < 3; ++k)
+        c[k] = c[k] - a[k];
+    }
     emit(c[kS] - cv::v_max(scale_ref.apply<refMode(kModes)>(c[kR]), scale_third.apply<thirdMode(kModes)>(c[kT])), vthr,
          y, x, runs, acc);
   }
@@ -249,6 +259,13 @@ void interleavedRow(const uint8_t* row, int width, int y, const ColourModel& mod
     rgb[model.signal] = px[kS];
     rgb[model.reference] = px[kR];
     rgb[model.third] = px[kT];
+    if (ambient)
+    {
+      const uint8_t* pa = ambient + kC * x;
+      rgb[model.signal] = std::max(0, rgb[model.signal] - pa[kS]);
+      rgb[model.reference] = std::max(0, rgb[model.reference] - pa[kR]);
+      rgb[model.third] = std::max(0, rgb[model.third] - pa[kT]);
+    }
     scalarCell(rgb, model, k_ref, k_third, threshold, y, x, runs, acc);
   }
 }
@@ -289,8 +306,8 @@ void bayerRow(const cv::Mat& m, PixelFormat format, int cells, int gy, const Col
   }
 }
 
-using InterleavedPass = void (*)(const uint8_t*, int, int, const ColourModel&, int, int, int, std::vector<Run>*,
-                                 uint16_t*);
+using InterleavedPass = void (*)(const uint8_t*, const uint8_t*, int, int, const ColourModel&, int, int, int,
+                                 std::vector<Run>*, uint16_t*);
 using BayerPass = void (*)(const cv::Mat&, PixelFormat, int, int, const ColourModel&, int, int, int, std::vector<Run>*,
                            uint16_t*);
 
@@ -331,21 +348,24 @@ BayerPass bayerPass(int signal, int modes)
 }
 }  // namespace
 
-bool colourRowRuns(const cv::Mat& image, PixelFormat format, const ColourModel& model, int k_ref, int k_third,
-                   int threshold, int gy, std::vector<Run>* runs, uint16_t* acc)
+bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
+                   int k_ref, int k_third, int threshold, int gy, std::vector<Run>* runs, uint16_t* acc)
 {
+  const uint8_t* ambient_row = ambient.empty() ? nullptr : ambient.ptr<uint8_t>(gy);
+  if (ambient_row && isBayer(format))
+    return false;
   const int modes = passModes(k_ref, k_third);
   switch (format)
   {
     case PixelFormat::kBgr8:
     case PixelFormat::kRgb8:
       interleavedPass<3>(format == PixelFormat::kRgb8, model.signal, modes)(
-          image.ptr<uint8_t>(gy), image.cols, gy, model, k_ref, k_third, threshold, runs, acc);
+          image.ptr<uint8_t>(gy), ambient_row, image.cols, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBgra8:
     case PixelFormat::kRgba8:
       interleavedPass<4>(format == PixelFormat::kRgba8, model.signal, modes)(
-          image.ptr<uint8_t>(gy), image.cols, gy, model, k_ref, k_third, threshold, runs, acc);
+          image.ptr<uint8_t>(gy), ambient_row, image.cols, gy, model, k_ref, k_third, threshold, runs, acc);
       return true;
     case PixelFormat::kBayerRggb8:
       bayerPass<0>(model.signal, modes)(image, format, image.cols / 2, gy, model, k_ref, k_third, threshold, runs, acc);

@@ -84,6 +84,57 @@ void fillInterleaved(const cv::Mat& m, PixelFormat format, const ColourModel& mo
   }
 }
 
+// The fast path for mono frames: the one plane, straight from the rows.
+template <typename T>
+void fillMono(const cv::Mat& m, int saturation, double scale, int cx, int cy, PlaneWindow* w, float* s, bool ambient)
+{
+  const int H = w->H;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const T* px = m.ptr<T>(cy + dy) + (cx - H);
+    const int row = w->index(-H, dy);
+    for (int k = 0; k <= 2 * H; ++k)
+    {
+      s[row + k] = static_cast<float>(px[k] * scale);
+      const bool clipped = px[k] >= saturation;
+      if (ambient)
+        w->flags[row + k] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[row + k] = static_cast<uint8_t>(PlaneWindow::kSample | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
+// The fast path for Bayer mosaics, colour path: the clipped raw samples of
+// the window and its one-pixel border marked once, each pixel's planes from
+// its own and its neighbours' samples.
+void fillBayer(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
+               PlaneWindow* w, float* s, float* r, float* t, bool ambient)
+{
+  const int H = w->H, n = 2 * H + 3;
+  bool raw_clipped[(2 * PlaneWindow::kMaxRadius + 3) * (2 * PlaneWindow::kMaxRadius + 3)];
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x)
+      raw_clipped[y * n + x] = pixels::bayerRaw(m, cx - H - 1 + x, cy - H - 1 + y) >= saturation;
+  for (int dy = -H; dy <= H; ++dy)
+    for (int dx = -H; dx <= H; ++dx)
+    {
+      const int i = w->index(dx, dy), x = cx + dx, y = cy + dy;
+      bool clipped = false;
+      for (int ey = 0; ey < 3 && !clipped; ++ey)
+        for (int ex = 0; ex < 3; ++ex)
+          clipped = clipped || raw_clipped[(dy + H + ey) * n + dx + H + ex];
+      s[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.signal));
+      r[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.reference));
+      t[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.third));
+      const bool sample = pixels::bayerColour(format, x, y) == model.signal;
+      if (ambient)
+        w->flags[i] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[i] = static_cast<uint8_t>((sample ? PlaneWindow::kSample : 0) | (clipped ? PlaneWindow::kClipped : 0));
+    }
+}
+
 bool isInterleaved(PixelFormat format)
 {
   return format == PixelFormat::kBgr8 || format == PixelFormat::kRgb8 || format == PixelFormat::kBgra8 ||
@@ -106,6 +157,28 @@ void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
     if (w->ambient)
       fillInterleaved(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
                       w->ambient_third, true);
+    return;
+  }
+  if (model_.colour && isBayer(format_))
+  {
+    fillBayer(image_, format_, model_, saturation_, cx, cy, w, w->signal, w->reference, w->third, false);
+    if (w->ambient)
+      fillBayer(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
+                w->ambient_third, true);
+    return;
+  }
+  if (format_ == PixelFormat::kMono8 || format_ == PixelFormat::kMono16)
+  {
+    const bool wide = format_ == PixelFormat::kMono16;
+    for (int pass = 0; pass < (w->ambient ? 2 : 1); ++pass)
+    {
+      const cv::Mat& m = pass ? ambient_ : image_;
+      float* s = pass ? w->ambient_signal : w->signal;
+      if (wide)
+        fillMono<uint16_t>(m, saturation_, 1.0 / 257.0, cx, cy, w, s, pass == 1);
+      else
+        fillMono<uint8_t>(m, saturation_, 1.0, cx, cy, w, s, pass == 1);
+    }
     return;
   }
   for (int dy = -H; dy <= H; ++dy)
