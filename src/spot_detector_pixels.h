@@ -112,6 +112,16 @@ int bayerChannel(const cv::Mat& m, PixelFormat format, int x, int y, int ch);
 
 namespace rows
 {
+// Appends candidate cell (x, y) to the runs, extending the last run when it
+// ends next to it.
+inline void markCell(std::vector<Run>* runs, int y, int x)
+{
+  if (!runs->empty() && runs->back().y == y && runs->back().x1 == x - 1)
+    runs->back().x1 = x;
+  else
+    runs->push_back({y, x, x});
+}
+
 // SIMD row passes of the threshold pass, 16 cells at a time; both append the
 // runs of candidate cells of grid row gy and are exact equivalents of the
 // generic scoring (FramePlanes::scoreRow). colourRowRuns: interleaved 8-bit

@@ -129,17 +129,6 @@ int FramePlanes::scoreAt(int gx, int gy) const
 // ---------------------------------------------------------------------------
 // Rows of the threshold pass.
 
-namespace
-{
-inline void markCell(std::vector<Run>* runs, int y, int x)
-{
-  if (!runs->empty() && runs->back().y == y && runs->back().x1 == x - 1)
-    runs->back().x1 = x;
-  else
-    runs->push_back({y, x, x});
-}
-}  // namespace
-
 // Any format and path: one row decoded into channel arrays (a switch per
 // row, simple loops per cell), scored, compared.
 void FramePlanes::scoreRow(int gy, int16_t* out) const
@@ -185,7 +174,7 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
     if (acc)
       acc[gx] = static_cast<uint16_t>(acc[gx] + std::min(255, std::max(0, int(s[gx]))));
     if (s[gx] >= thresholdOf(gx, gy))
-      markCell(runs, gy, gx);
+      rows::markCell(runs, gy, gx);
   }
 }
 

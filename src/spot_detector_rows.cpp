@@ -120,14 +120,6 @@ namespace rows
 
 namespace
 {
-inline void markCell(std::vector<Run>* runs, int y, int x)
-{
-  if (!runs->empty() && runs->back().y == y && runs->back().x1 == x - 1)
-    runs->back().x1 = x;
-  else
-    runs->push_back({y, x, x});
-}
-
 // The generic score of one cell (FramePlanes::colourScore) and its verdict,
 // for the tails of the SIMD loops.
 inline void scalarCell(const int* rgb, const ColourModel& model, int k_ref, int k_third, int threshold, int y, int x,
@@ -199,6 +191,18 @@ inline cv::v_uint8x16 average(const cv::v_uint8x16& a, const cv::v_uint8x16& b)
   return cv::v_pack(cv::v_shr<1>(a0 + b0 + one), cv::v_shr<1>(a1 + b1 + one));
 }
 
+// The cells of a 16-lane comparison mask that hold, as runs.
+inline void markHits(const cv::v_uint8x16& m, int y, int x, std::vector<Run>* runs)
+{
+  if (!cv::v_check_any(m))
+    return;
+  alignas(16) uint8_t hit[16];
+  cv::v_store(hit, m);
+  for (int i = 0; i < 16; ++i)
+    if (hit[i])
+      markCell(runs, y, x + i);
+}
+
 // Scores s - max(k_ref r, k_third t) (saturating) of 16 cells: runs and acc.
 inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y, int x, std::vector<Run>* runs,
                  uint16_t* acc)
@@ -210,14 +214,7 @@ inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y
     cv::v_store(acc + x, cv::v_load(acc + x) + lo);
     cv::v_store(acc + x + 8, cv::v_load(acc + x + 8) + hi);
   }
-  const cv::v_uint8x16 m = s >= threshold;
-  if (!cv::v_check_any(m))
-    return;
-  alignas(16) uint8_t hit[16];
-  cv::v_store(hit, m);
-  for (int i = 0; i < 16; ++i)
-    if (hit[i])
-      markCell(runs, y, x + i);
+  markHits(s >= threshold, y, x, runs);
 }
 #endif
 
@@ -400,14 +397,7 @@ void monoRowRuns(const uint8_t* row, int width, int y, int block, const int* lev
     const cv::v_uint8x16 vlim = cv::v_setall_u8(static_cast<uint8_t>(lim));
     for (; x + 16 <= x1; x += 16)
     {
-      const cv::v_uint8x16 m = cv::v_load(row + x) >= vlim;
-      if (!cv::v_check_any(m))
-        continue;
-      alignas(16) uint8_t hit[16];
-      cv::v_store(hit, m);
-      for (int i = 0; i < 16; ++i)
-        if (hit[i])
-          markCell(runs, y, x + i);
+      markHits(cv::v_load(row + x) >= vlim, y, x, runs);
     }
 #endif
     for (; x < x1; ++x)

@@ -120,35 +120,35 @@ void benchmarkInputs(int detections)
   }
 }
 
-int main(int argc, char** argv)
+// Pins the process to the first core it may run on; false when the OS refuses.
+bool pinToOneCore()
 {
-  const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 40;
-  const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
-
-  bool pinned = false;
 #ifdef __linux__
   cpu_set_t set;
   CPU_ZERO(&set);
-  if (sched_getaffinity(0, sizeof(set), &set) == 0)
+  if (sched_getaffinity(0, sizeof(set), &set) != 0)
+    return false;
+  for (int c = 0; c < CPU_SETSIZE; ++c)
   {
-    for (int c = 0; c < CPU_SETSIZE; ++c)
+    if (CPU_ISSET(c, &set))
     {
-      if (CPU_ISSET(c, &set))
-      {
-        cpu_set_t one;
-        CPU_ZERO(&one);
-        CPU_SET(c, &one);
-        pinned = sched_setaffinity(0, sizeof(one), &one) == 0;
-        break;
-      }
+      cpu_set_t one;
+      CPU_ZERO(&one);
+      CPU_SET(c, &one);
+      return sched_setaffinity(0, sizeof(one), &one) == 0;
     }
   }
 #endif
-  // Frames rendered before the pinning matters (the simulator uses threads).
+  return false;
+}
+
+// The benchmark's bgr8 frames: dot sigma 1.5-4 px, sun 0.5 and 1, clutter.
+std::vector<cv::Mat> benchmarkFrames(int count)
+{
   std::vector<cv::Mat> images;
   const double beams[] = {0.0014, 0.002, 0.0028, 0.0038};
   const double suns[] = {1.0, 0.5};
-  for (int i = 0; i < std::min(frames, 8); ++i)
+  for (int i = 0; i < count; ++i)
   {
     SimulatorParams cfg;
     cfg.projector.beam_sigma_rad = beams[i % 4];
@@ -161,6 +161,17 @@ int main(int argc, char** argv)
     cfg.motion.jitter_translation_m = 0.002;
     images.push_back(Simulator(cfg).render(0.1 * i).image);
   }
+  return images;
+}
+
+int main(int argc, char** argv)
+{
+  const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 40;
+  const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
+
+  const bool pinned = pinToOneCore();
+  // Frames rendered before the pinning matters (the simulator uses threads).
+  const std::vector<cv::Mat> images = benchmarkFrames(std::min(frames, 8));
   cv::setNumThreads(1);
   std::printf(
       "frames: %d distinct simulator frames 1024x1024 bgr8 (dot sigma 1.5-4 px, sun 0.5 and 1, clutter), "

@@ -130,8 +130,8 @@ std::string inconsistency(const sensor_msgs::Image& msg, PixelFormat format)
   if (msg.width == 0 || msg.height == 0)
     return "inconsistent image (" + what + "): empty";
   if (msg.step < row_bytes)
-    return "inconsistent image (" + what + "): step " + std::to_string(msg.step) + " < width * bytes per pixel " +
-           std::to_string(row_bytes);
+    return "inconsistent image (" + what + "): step " + std::to_string(msg.step) +
+           " < width * channels * bytes per sample " + std::to_string(row_bytes);
   const size_t needed = static_cast<size_t>(msg.step) * (msg.height - 1) + row_bytes;
   if (msg.data.size() < needed)
     return "inconsistent image (" + what + ", step " + std::to_string(msg.step) + "): truncated, " +
