@@ -22,6 +22,7 @@ namespace sls = structured_light_stabilizer;
 using sim_measure::channelMoments;
 using sim_measure::Moments;
 using sim_measure::nightNoNoise;
+using sim_measure::sunlitNoNoise;
 
 TEST(SimulatorPhysics, DotOverAmbientIsTextureFreeWhileTheRawCentroidIsBent)
 {
@@ -33,12 +34,8 @@ TEST(SimulatorPhysics, DotOverAmbientIsTextureFreeWhileTheRawCentroidIsBent)
   // independent code: the rock's ray casts and the dot's tangent-plane map),
   // while the plain centroid of the added light is pulled towards bright
   // grains. Seeds 1 (rock) and 42 (noise), not tuned against.
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 1.0;
+  sls::SimulatorParams c = sunlitNoNoise(1.0);
   c.lighting.dot_to_sun_ratio = 0.5;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
   c.rock.relief_m = 0.0;
   c.rock.fine_texture_period_m = 0.02;
   c.rock_subsample = 1;
@@ -91,11 +88,7 @@ TEST(SimulatorPhysics, FineTextureModulatesBrightnessMostlyAndKeepsTheCoarseAlbe
   // +-amplitude in brightness with a quarter of that as hue (R against B).
   // A weakly textured rock (texture_scale 0.1 m) has little albedo contrast
   // over a few centimetres (what helper F's texture-poor tests need).
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 1.0;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
+  sls::SimulatorParams c = sunlitNoNoise(1.0);
   c.projector.power_scale = 0.0;
   c.rock.relief_m = 0.0;
   c.rock.fine_texture_period_m = 0.015;  // a cell of 2 mm either way: same grid
@@ -319,7 +312,7 @@ void checkPrintedEdgeShift(double aperture_m)
   c.lighting.sun_level = 0.0;
   c.sensor.read_noise_dn = 0.0;
   c.sensor.shot_noise = false;
-  c.keep_linear = true;
+  c.keep_linear = true;  // (the board's settings, noise-free at night)
   const sls::Simulator sim(c);
   const sls::SimFrame f = sim.render(0.0);
   const sls::ChessboardParams& b = c.target.chessboard;
@@ -382,14 +375,10 @@ namespace
 // pixels of the study's camera (the whole grid of dots), to keep the tests lean.
 sls::SimulatorParams plainNoiseFree()
 {
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sunlitNoNoise(0.6);
   c.sensor.camera.width = c.sensor.camera.height = 400;
   c.sensor.camera.cx = c.sensor.camera.cy = 199.5;
   c.rock.width_m = c.rock.height_m = 0.8;  // what it sees at 1.5 m (a quicker build)
-  c.lighting.sun_level = 0.6;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
   c.rock.albedo_min = c.rock.albedo_max = 0.3;
   return c;
 }
@@ -699,15 +688,11 @@ TEST(SimulatorPhysics, MotionBlurSmearsTheRockAlongTheMotion)
 {
   // At 1.5 m/s sideways (10 px in 10 ms) the rock's fine texture loses
   // contrast along the motion (x), much less across it.
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sunlitNoNoise(1.0);
   c.sensor.camera = plainNoiseFree().sensor.camera;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
   c.rock.width_m = c.rock.height_m = 0.8;
   c.rock.relief_m = 0.0;
   c.motion.drift_velocity_mps = Eigen::Vector3d(1.5, 0.0, 0.0);
-  c.lighting.sun_level = 1.0;
   c.projector.power_scale = 0.0;
   c.rock.fine_texture_period_m = 0.01;  // grain of 2-3 px
   sls::SimulatorParams blurred = c;

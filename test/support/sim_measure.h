@@ -63,4 +63,15 @@ inline sls::SimulatorParams nightNoNoise()
   return c;
 }
 
+// Sunlit at sun_level, noise-free, keeping the linear radiance.
+inline sls::SimulatorParams sunlitNoNoise(double sun_level)
+{
+  sls::SimulatorParams c;
+  c.lighting.sun_level = sun_level;
+  c.sensor.read_noise_dn = 0.0;
+  c.sensor.shot_noise = false;
+  c.keep_linear = true;
+  return c;
+}
+
 }  // namespace sim_measure
