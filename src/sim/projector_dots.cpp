@@ -137,6 +137,7 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
     DotAlbedo da = dotAlbedo(g, hit, n, J, A, S);
     std::copy(&spectrum.dot_mix[0][0], &spectrum.dot_mix[0][0] + 12, &da.mix[0][0]);
     da.g_lookup = std::min(1e-3, 0.02 / std::max(amplitude, 1e-9));
+    da.prepareGrid(rock);
     da.factors(rock, 0.0, 0.0, da.f0);
     frame->peak_dn[b] = amplitude * da.f0[spectrum.primary];
     frame->blur_sigma_px[b] = std::sqrt(0.5 * S.trace());
@@ -146,7 +147,14 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
     for (int c = 0; c < 3; ++c)
       sp.value[c] = static_cast<float>(amplitude);
     sp.albedo = static_cast<int>(albedo->size());
-    if (amplitude > 0.0 && setSplatShape(&sp, S, 50.0, cam.height))  // exp(-25): below any DN
+    // The splat ends where the dot falls below 0.005 DN, but not before
+    // exp(-12.5) of its peak (what the second moments of a faint dot see) nor
+    // after exp(-25).
+    const double brightest =
+        amplitude * std::max({da.mix[0][0], da.mix[0][1], da.mix[0][2], da.mix[0][3], da.mix[1][0], da.mix[1][1],
+                              da.mix[1][2], da.mix[1][3], da.mix[2][0], da.mix[2][1], da.mix[2][2], da.mix[2][3]});
+    const double q_max = std::min(50.0, std::max(25.0, 2.0 * std::log(brightest / 0.005)));
+    if (amplitude > 0.0 && setSplatShape(&sp, S, q_max, cam.height))
     {
       splats->push_back(sp);
       albedo->push_back(da);

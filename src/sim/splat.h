@@ -3,6 +3,7 @@
 // frame is composed row by row, so a splat is applied one row at a time.
 #pragma once
 
+#include <algorithm>
 #include <vector>
 
 #include <Eigen/Core>
@@ -55,10 +56,43 @@ struct DotAlbedo
   void factors(const RockSurface& surface, double du, double dv, float out[3]) const
   {
     float rho[4];
-    surface.reflectanceUnderDot(x0 + K[0] * du + K[1] * dv, y0 + K[2] * du + K[3] * dv, blur_x, blur_y, rho);
+    if (surface.board)
+      surface.reflectanceUnderDot(x0 + K[0] * du + K[1] * dv, y0 + K[2] * du + K[3] * dv, blur_x, blur_y, rho);
+    else
+      rockReflectance(surface, static_cast<float>(du), static_cast<float>(dv), rho);
     for (int c = 0; c < 3; ++c)
       out[c] = mix[c][0] * rho[0] + mix[c][1] * rho[1] + mix[c][2] * rho[2] + mix[c][3] * rho[3];
   }
+
+  // The rock's bilinear albedo grid read in grid units (what most dot pixels
+  // cost): the map to rock (x, y) folded into one to grid coordinates, in
+  // float, the indices clamped to the grid.
+  void prepareGrid(const RockSurface& surface)
+  {
+    const double ic = surface.inv_cell;
+    gu0 = static_cast<float>((x0 - surface.x0) * ic);
+    gv0 = static_cast<float>((y0 - surface.y0) * ic);
+    for (int k = 0; k < 4; ++k)
+      Kg[k] = static_cast<float>(K[k] * ic);
+  }
+
+  void rockReflectance(const RockSurface& surface, float du, float dv, float rho[4]) const
+  {
+    const float u = std::min(std::max(gu0 + Kg[0] * du + Kg[1] * dv, 0.0f), static_cast<float>(surface.nx));
+    const float v = std::min(std::max(gv0 + Kg[2] * du + Kg[3] * dv, 0.0f), static_cast<float>(surface.ny));
+    const int i = std::min(static_cast<int>(u), surface.nx - 1), j = std::min(static_cast<int>(v), surface.ny - 1);
+    const float fx = u - i, fy = v - j;
+    const float* p00 = &surface.refl[3 * static_cast<size_t>(surface.vertex(i, j))];
+    const float* p01 = p00 + 3 * (surface.nx + 1);
+    for (int c = 0; c < 3; ++c)
+    {
+      const float a = p00[c] + fx * (p00[3 + c] - p00[c]), b = p01[c] + fx * (p01[3 + c] - p01[c]);
+      rho[c] = a + fy * (b - a);
+    }
+    rho[3] = std::min(1.0f, surface.nir_to_red * rho[2]);
+  }
+
+  float gu0 = 0.0f, gv0 = 0.0f, Kg[4] = {0.0f, 0.0f, 0.0f, 0.0f};  // prepareGrid()
 };
 
 // Sets the inverse covariance and the rows of a splat of covariance S (px^2);
