@@ -26,7 +26,9 @@
 // study's design, scene_analysis.h), falls
 // with cos(incidence) / distance^2 and is spread in the image by the beam
 // footprint, the defocus blur (DoC / 4 as a Gaussian sigma: the second moment
-// of a uniform disc of diameter DoC), diffraction and the pixel box.
+// of a uniform disc of diameter DoC), diffraction and the pixel box; each
+// pixel of a dot takes the albedo, and on relief the incidence, of its own
+// surface point.
 //
 // Where each part lives (src/sim/), and so where new physics goes:
 //   rock_surface   height field, albedo (fine texture), baked shading
@@ -37,7 +39,7 @@
 //   projector_dots beams, their footprints, brightness and ground truth
 //   spectral       projector colours and camera channels (bands, responses, mono)
 //   clutter        patches on the rock
-//   splat          image-space Gaussians (dots with their per-pixel albedo, patches)
+//   splat          image-space Gaussians (dots with their per-pixel albedo and incidence, patches)
 //   optics         defocus, diffraction, vignetting
 //   sensor         noise, full well and blooming, the output encodings
 //   motion_blur    sub-exposures over the exposure time
