@@ -124,6 +124,7 @@ void RockSurface::computeSlopeBounds()
   // test never clips a true hit.
   hmin -= 1e-6;
   hmax += 1e-6;
+  planar = lx == 0.0 && ly == 0.0;
   lip_x = lx / cell * 1.001 + 1e-9;
   lip_y = ly / cell * 1.001 + 1e-9;
 }

@@ -41,6 +41,7 @@ struct RockSurface
   std::vector<float> hs;
   double hmin = 0.0, hmax = 0.0;
   double lip_x = 0.0, lip_y = 0.0;  // Lipschitz bounds of the bilinear surface
+  bool planar = false;              // all heights equal: one normal everywhere
   // Per block of kBlock x kBlock cells: lowest vertex and slope bounds, for
   // the ray caster's empty-space skipping.
   static constexpr int kBlock = 8;

@@ -25,9 +25,9 @@ SensorNoise::SensorNoise(const SensorParams& sc, uint32_t noise_seed, double t)
 }
 
 // n (rounded up to 5) standard normal deviates for row v of stream `key`.
-void SensorNoise::normals(uint64_t key, int v, int n, float* N) const
+void SensorNoise::normals(uint64_t key, int v, int n, float* __restrict N) const
 {
-  const std::vector<float>& table = table_;
+  const float* __restrict table = table_.data();
   uint64_t state = key ^ (0xD1B54A32D192ED03ull * static_cast<uint64_t>(v + 1));
   for (int k = 0; k < n; k += 5)
   {

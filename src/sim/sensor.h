@@ -36,7 +36,7 @@ public:
   void applyReadRow(int v, int n, float* __restrict L, float* __restrict N) const;
 
 private:
-  void normals(uint64_t key, int v, int n, float* N) const;
+  void normals(uint64_t key, int v, int n, float* __restrict N) const;
 
   const std::vector<float>& table_;  // standard normal quantiles (noise.h)
   float read_var_;                   // DN^2

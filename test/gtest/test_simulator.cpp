@@ -131,9 +131,14 @@ TEST(Simulator, NoiseFreeDotCentroidIsTheProjectedHitPoint)
   {
     sls::SimulatorParams c = nightNoNoise();
     c.lighting.dot_to_sun_ratio = 1.5;  // peaks stay below saturation
-    // Uniform albedo: each pixel of a dot reflects the albedo under it, so a
-    // textured rock bends centroids (AlbedoUnderTheDotBendsTheCentroid...).
+    // Uniform albedo on a plane (tilted, so the footprints are sheared): each
+    // pixel of a dot reflects the albedo under it, and on relief receives the
+    // irradiance of its own incidence, so texture and relief bend centroids
+    // (test_simulator_physics: DotOverAmbient..., DotOnRoughRock...).
     c.rock.albedo_min = c.rock.albedo_max = 0.3;
+    c.rock.relief_m = 0.0;
+    c.rock.tilt_x_rad = 0.25;
+    c.rock.tilt_y_rad = -0.3;
     if (distorted)
     {
       c.sensor.camera.distortion = sls::DistortionModel::kPlumbBob;

@@ -22,6 +22,7 @@ namespace sls = structured_light_stabilizer;
 using sim_measure::channelMoments;
 using sim_measure::Moments;
 using sim_measure::nightNoNoise;
+using sim_measure::sunlitNoNoise;
 
 TEST(SimulatorPhysics, DotOverAmbientIsTextureFreeWhileTheRawCentroidIsBent)
 {
@@ -33,12 +34,8 @@ TEST(SimulatorPhysics, DotOverAmbientIsTextureFreeWhileTheRawCentroidIsBent)
   // independent code: the rock's ray casts and the dot's tangent-plane map),
   // while the plain centroid of the added light is pulled towards bright
   // grains. Seeds 1 (rock) and 42 (noise), not tuned against.
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 1.0;
+  sls::SimulatorParams c = sunlitNoNoise(1.0);
   c.lighting.dot_to_sun_ratio = 0.5;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
   c.rock.relief_m = 0.0;
   c.rock.fine_texture_period_m = 0.02;
   c.rock_subsample = 1;
@@ -91,11 +88,7 @@ TEST(SimulatorPhysics, FineTextureModulatesBrightnessMostlyAndKeepsTheCoarseAlbe
   // +-amplitude in brightness with a quarter of that as hue (R against B).
   // A weakly textured rock (texture_scale 0.1 m) has little albedo contrast
   // over a few centimetres (what helper F's texture-poor tests need).
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 1.0;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
+  sls::SimulatorParams c = sunlitNoNoise(1.0);
   c.projector.power_scale = 0.0;
   c.rock.relief_m = 0.0;
   c.rock.fine_texture_period_m = 0.015;  // a cell of 2 mm either way: same grid
@@ -319,7 +312,7 @@ void checkPrintedEdgeShift(double aperture_m)
   c.lighting.sun_level = 0.0;
   c.sensor.read_noise_dn = 0.0;
   c.sensor.shot_noise = false;
-  c.keep_linear = true;
+  c.keep_linear = true;  // (the board's settings, noise-free at night)
   const sls::Simulator sim(c);
   const sls::SimFrame f = sim.render(0.0);
   const sls::ChessboardParams& b = c.target.chessboard;
@@ -374,6 +367,101 @@ void checkPrintedEdgeShift(double aperture_m)
   EXPECT_LT(worst, aperture_m > 0.005 ? 1e-3 : 0.035);
 }
 
+// Per dot away from the border: the rendered centroid minus the truth
+// (`shift`) and the sub-ray integration's minus the truth (`predicted`), px,
+// and the cosine of the beam's incidence at the hit (`cos_beam`, the
+// normal of the surface the ray caster meets). Night, noise-free, uniform
+// albedo, a 2 mm height grid.
+struct IncidenceShifts
+{
+  std::vector<cv::Point2d> shift, predicted;
+  std::vector<double> cos_beam;
+};
+
+IncidenceShifts incidenceShifts(uint32_t seed, double relief_m)
+{
+  sls::SimulatorParams c = nightNoNoise();
+  c.sensor.camera.width = c.sensor.camera.height = 400;  // the whole grid of dots
+  c.sensor.camera.cx = c.sensor.camera.cy = 199.5;
+  c.rock.width_m = c.rock.height_m = 0.8;
+  c.rock.albedo_min = c.rock.albedo_max = 0.3;
+  c.rock.texture_scale_m = 0.01;
+  c.rock.relief_m = relief_m;
+  c.rock.seed = seed;
+  const sls::Simulator sim(c);
+  const sls::SimFrame f = sim.render(0.0);
+  IncidenceShifts out;
+  for (int k = 0; k < sim.projector().beamCount(); ++k)
+  {
+    const cv::Point2d p = f.pixels[k];
+    if (!f.visible[k] || p.x < 12 || p.y < 12 || p.x > 387 || p.y > 387)
+      continue;
+    const cv::Point2d q = sim_measure::subRayCentroid(sim, k, 0.0);
+    if (!std::isfinite(q.x))
+      continue;  // part of the beam misses the rock
+    const Moments m = channelMoments(f.linear, 1, p, 10);
+    out.shift.push_back(cv::Point2d(m.x, m.y) - p);
+    out.predicted.push_back(q - p);
+    const sls::BeamRay& beam = sim.projector().beams[k];
+    const Eigen::Vector3d b = beam.direction.normalized(), e1 = b.unitOrthogonal(), e2 = b.cross(e1);
+    Eigen::Vector3d x1, x2;
+    sim.intersect(0.0, beam.origin, (b + 2e-5 * e1).normalized(), &x1);
+    sim.intersect(0.0, beam.origin, (b + 2e-5 * e2).normalized(), &x2);
+    out.cos_beam.push_back(std::abs((x1 - f.points[k]).cross(x2 - f.points[k]).normalized().dot(b)));
+  }
+  return out;
+}
+
+TEST(SimulatorPhysics, DotOnRoughRockShiftsAsItsSubRaysLand)
+{
+  // The beam's irradiance follows the incidence under each pixel, and the
+  // footprint stretches where the rock turns from the beam (splat.h,
+  // DotAlbedo::incidenceFactor). Checked against an independent calculation
+  // that knows nothing of incidence angles: the beam cut into sub-rays, each
+  // cast onto the rock and weighed by the power a Lambertian patch sends to
+  // the lens (sim_measure::subRayCentroid). The rough octaves (1-2 cm) move
+  // the centroids off the hit point by a few hundredths of a pixel (before,
+  // by nothing). What remains: the footprint's perspective within the dot,
+  // which the simulator's affine map leaves out (0.0014 px RMS on a flat rock
+  // facing the camera, 0.009 px tilted 0.5 rad), and the corrections being
+  // first order: past ~70 degrees of incidence the footprint spans several
+  // cells of rough relief and the residual grows to ~40 % of the shift.
+  // Bounds set on rock seeds 1 and 2 (relief 0.15-0.5 m: residual 9-19 %
+  // of the shift RMS); held out: seeds 3 and 4 at first (seed 4, 0.5 m, broke
+  // the first per-dot bound, 0.1 px, at a dot at 78 degrees: since then the
+  // per-dot bound holds below 70 degrees), then seeds 5 and 6.
+  const struct
+  {
+    uint32_t seed;
+    double relief_m, min_shift_rms;
+  } cases[] = {{5, 0.15, 0.015}, {6, 0.5, 0.06}};
+  for (const auto& k : cases)
+  {
+    const IncidenceShifts s = incidenceShifts(k.seed, k.relief_m);
+    double p2 = 0.0, r2 = 0.0, e2 = 0.0, worst = 0.0, worst_grazing = 0.0;
+    for (size_t i = 0; i < s.shift.size(); ++i)
+    {
+      const cv::Point2d e = s.shift[i] - s.predicted[i];
+      p2 += s.predicted[i].dot(s.predicted[i]);
+      r2 += s.shift[i].dot(s.shift[i]);
+      e2 += e.dot(e);
+      double& bound = s.cos_beam[i] >= std::cos(70.0 * M_PI / 180.0) ? worst : worst_grazing;
+      bound = std::max(bound, std::hypot(e.x, e.y));
+    }
+    const double n = static_cast<double>(s.shift.size());
+    const double predicted = std::sqrt(p2 / n), rendered = std::sqrt(r2 / n), residual = std::sqrt(e2 / n);
+    std::cout << "[ MEASURE ] rock seed " << k.seed << ", relief " << k.relief_m << " m, " << n
+              << " dots: centroid - hit point, sub-ray integration " << predicted << " px RMS, rendered " << rendered
+              << " px RMS; rendered - integrated " << residual << " px RMS, max " << worst << " (incidence < 70 deg), "
+              << worst_grazing << " (beyond)\n";
+    ASSERT_GT(n, 80);
+    EXPECT_GT(predicted, k.min_shift_rms);  // the relief really moves the dots
+    EXPECT_LT(residual, 0.25 * predicted);
+    EXPECT_LT(worst, 0.08);
+    EXPECT_LT(worst_grazing, 0.3);
+  }
+}
+
 namespace
 {
 
@@ -382,14 +470,10 @@ namespace
 // pixels of the study's camera (the whole grid of dots), to keep the tests lean.
 sls::SimulatorParams plainNoiseFree()
 {
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sunlitNoNoise(0.6);
   c.sensor.camera.width = c.sensor.camera.height = 400;
   c.sensor.camera.cx = c.sensor.camera.cy = 199.5;
   c.rock.width_m = c.rock.height_m = 0.8;  // what it sees at 1.5 m (a quicker build)
-  c.lighting.sun_level = 0.6;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
   c.rock.albedo_min = c.rock.albedo_max = 0.3;
   return c;
 }
@@ -699,15 +783,11 @@ TEST(SimulatorPhysics, MotionBlurSmearsTheRockAlongTheMotion)
 {
   // At 1.5 m/s sideways (10 px in 10 ms) the rock's fine texture loses
   // contrast along the motion (x), much less across it.
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sunlitNoNoise(1.0);
   c.sensor.camera = plainNoiseFree().sensor.camera;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
   c.rock.width_m = c.rock.height_m = 0.8;
   c.rock.relief_m = 0.0;
   c.motion.drift_velocity_mps = Eigen::Vector3d(1.5, 0.0, 0.0);
-  c.lighting.sun_level = 1.0;
   c.projector.power_scale = 0.0;
   c.rock.fine_texture_period_m = 0.01;  // grain of 2-3 px
   sls::SimulatorParams blurred = c;

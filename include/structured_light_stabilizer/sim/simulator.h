@@ -26,20 +26,25 @@
 // study's design, scene_analysis.h), falls
 // with cos(incidence) / distance^2 and is spread in the image by the beam
 // footprint, the defocus blur (DoC / 4 as a Gaussian sigma: the second moment
-// of a uniform disc of diameter DoC), diffraction and the pixel box.
+// of a uniform disc of diameter DoC), diffraction and the pixel box; each
+// pixel of a dot takes the albedo, and on relief the incidence, of its own
+// surface point.
 //
 // Where each part lives (src/sim/), and so where new physics goes:
-//   rock_surface   height field, albedo, baked shading (texture, a target board)
+//   rock_surface   height field, albedo (fine texture), baked shading
+//   target_board   the chessboard target: print, pose, per-pixel rendering
 //   ray_cast       rays against the height field
 //   rock_render    the rock's radiance per pixel
+//   brightness     the lighting as signal: sunDn(), dotGain() (the radiometric hook)
 //   projector_dots beams, their footprints, brightness and ground truth
-//                  (projector colours, strobing, per-dot albedo)
+//   spectral       projector colours and camera channels (bands, responses, mono)
 //   clutter        patches on the rock
-//   splat          image-space Gaussians (dots and patches)
-//   optics         defocus, diffraction, vignetting (per-dot defocus, filters)
-//   sensor         noise, quantisation (clipping, blooming, Bayer output)
+//   splat          image-space Gaussians (dots with their per-pixel albedo and incidence, patches)
+//   optics         defocus, diffraction, vignetting
+//   sensor         noise, full well and blooming, the output encodings
+//   motion_blur    sub-exposures over the exposure time
 //   rig_motion     the camera's motion (an arm model)
-//   simulator      the frame, stage by stage (exposure effects: motion blur)
+//   simulator      the frame, stage by stage
 //
 // Thread-safety: render() and the other const members may run concurrently;
 // updateLive() may not run concurrently with anything on the same object.
