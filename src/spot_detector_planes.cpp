@@ -100,8 +100,16 @@ int FramePlanes::thresholdOf(int gx, int gy) const
 
 int FramePlanes::cellScore(int gx, int gy) const
 {
-  if (format_ == PixelFormat::kMono8 && ambient_.empty())  // the mono camera's hot path
-    return 16 * image_.ptr<uint8_t>(gy)[gx] - levelOf(gx, gy);
+  if (ambient_.empty())  // the hot paths: a colour camera's bgr8, a mono camera's mono8
+  {
+    if (format_ == PixelFormat::kMono8)
+      return 16 * image_.ptr<uint8_t>(gy)[gx] - levelOf(gx, gy);
+    if (format_ == PixelFormat::kBgr8 && model_.colour)
+    {
+      const uint8_t* px = image_.ptr<uint8_t>(gy) + 3 * gx;
+      return colourScore(Triple{{px[2], px[1], px[0]}});
+    }
+  }
   Triple t = cellAt(image_, gx, gy);
   if (model_.colour)
   {

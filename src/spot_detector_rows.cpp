@@ -218,16 +218,16 @@ inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y
 }
 #endif
 
-// Interleaved 8-bit colour: kS, kR, kT are the byte offsets of the signal,
-// reference and third channels in a pixel of kC bytes.
-template <int kC, int kS, int kR, int kT, int kModes>
-void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y, const ColourModel& model, int k_ref,
-                    int k_third, int threshold, std::vector<Run>* runs, uint16_t* acc)
-{
-  int x = 0;
 #if CV_SIMD128
+// The SIMD part of interleavedRow: cells [0, returned) of the row. kAmbient:
+// score frame - ambient (saturating at 0, as the scalar score).
+template <int kC, int kS, int kR, int kT, int kModes, bool kAmbient>
+int interleavedSimd(const uint8_t* row, const uint8_t* ambient, int width, int y, int k_ref, int k_third, int threshold,
+                    std::vector<Run>* runs, uint16_t* acc)
+{
   const Scale scale_ref(k_ref), scale_third(k_third);
   const cv::v_uint8x16 vthr = cv::v_setall_u8(static_cast<uint8_t>(std::min(threshold, 255)));
+  int x = 0;
   for (; x + 16 <= width; x += 16)
   {
     cv::v_uint8x16 c[4];
@@ -235,7 +235,7 @@ void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y
       cv::v_load_deinterleave(row + 3 * x, c[0], c[1], c[2]);
     else
       cv::v_load_deinterleave(row + 4 * x, c[0], c[1], c[2], c[3]);
-    if (ambient)  // the added light: frame - ambient, saturating at 0 (as the scalar score)
+    if (kAmbient)
     {
       cv::v_uint8x16 a[4];
       if (kC == 3)
@@ -248,6 +248,23 @@ void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y
     emit(c[kS] - cv::v_max(scale_ref.apply<refMode(kModes)>(c[kR]), scale_third.apply<thirdMode(kModes)>(c[kT])), vthr,
          y, x, runs, acc);
   }
+  return x;
+}
+#endif
+
+// Interleaved 8-bit colour: kS, kR, kT are the byte offsets of the signal,
+// reference and third channels in a pixel of kC bytes; ambient (may be
+// null) the same row of the ambient frame.
+template <int kC, int kS, int kR, int kT, int kModes>
+void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y, const ColourModel& model, int k_ref,
+                    int k_third, int threshold, std::vector<Run>* runs, uint16_t* acc)
+{
+  int x = 0;
+#if CV_SIMD128
+  x = ambient
+          ? interleavedSimd<kC, kS, kR, kT, kModes, true>(row, ambient, width, y, k_ref, k_third, threshold, runs, acc)
+          : interleavedSimd<kC, kS, kR, kT, kModes, false>(row, ambient, width, y, k_ref, k_third, threshold, runs,
+                                                           acc);
 #endif
   for (; x < width; ++x)
   {
