@@ -9,7 +9,7 @@
 // (NIR), bgr8 with a projector-off frame.
 //
 // Before issue #14/#16 (integrate2 994be93, same frames, thread CPU): fast
-// 1.65-1.95 ms per frame; see docs/performance.md for the figures after.
+// 1.7-2.3 ms per frame; see docs/performance.md for the figures after.
 //
 // usage: benchmark_spot_detector [frames=40] [repeats=5]
 #include <algorithm>
