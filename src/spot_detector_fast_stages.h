@@ -207,6 +207,11 @@ struct RefineScratch
 bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, double y0, double sigma0,
                 int fixed_radius, RefineScratch* scratch, SpotFit* out);
 
+// The clipped plateau of the signal nearest to (x, y) in the window: its
+// centroid and its half width across the columns. False when the window has
+// no clipped sample (spot_detector_fit.cpp).
+bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* centre, double* half_width);
+
 // Fits A exp(-r^2 / 2 sigma^2) to the usable pixels of w by Gauss-Newton,
 // from fit's x, y, sigma; updates them, amplitude and flux. False (fit
 // untouched) when too few pixels are usable or it does not converge.

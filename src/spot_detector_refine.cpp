@@ -449,62 +449,6 @@ void describeWindow(const WeightWindow& win, SpotFit* out)
   out->window = cv::Rect(win.cx - win.H, win.cy - win.H, 2 * win.H + 1, 2 * win.H + 1);
 }
 
-// The clipped plateau nearest to (x, y) in the window: its centroid and its
-// half width across the columns (blooming runs along them, so the width is
-// the clipping's own). False when the window has no clipped sample.
-bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* centre, double* half_width)
-{
-  const int H = pw.H;
-  auto clipped = [&](int dx, int dy)
-  {
-    return std::abs(dx) <= H && std::abs(dy) <= H &&
-           (pw.flags[pw.index(dx, dy)] & (PlaneWindow::kClipped | PlaneWindow::kSample)) ==
-               (PlaneWindow::kClipped | PlaneWindow::kSample);
-  };
-  int sx = 0, sy = 0;
-  double best = detail::kInf;
-  for (int dy = -H; dy <= H; ++dy)
-    for (int dx = -H; dx <= H; ++dx)
-      if (clipped(dx, dy) && detail::square(pw.cx + dx - x) + detail::square(pw.cy + dy - y) < best)
-      {
-        best = detail::square(pw.cx + dx - x) + detail::square(pw.cy + dy - y);
-        sx = dx;
-        sy = dy;
-      }
-  if (!std::isfinite(best))
-    return false;
-  // Flood fill within 2 px (a Bayer mosaic's samples of one colour are 2 px apart).
-  uint8_t seen[PlaneWindow::kSize] = {};
-  cv::Point stack[PlaneWindow::kSize];
-  int top = 0;
-  stack[top++] = cv::Point(sx, sy);
-  seen[pw.index(sx, sy)] = 1;
-  double mx = 0, my = 0;
-  int n = 0, widest = 0;
-  cv::Vec2i row_span[2 * PlaneWindow::kMaxRadius + 1];
-  std::fill(row_span, row_span + 2 * H + 1, cv::Vec2i(1 << 20, -(1 << 20)));
-  while (top > 0)
-  {
-    const cv::Point q = stack[--top];
-    mx += q.x;
-    my += q.y;
-    ++n;
-    cv::Vec2i& span = row_span[q.y + H];
-    span = cv::Vec2i(std::min(span[0], q.x), std::max(span[1], q.x));
-    widest = std::max(widest, span[1] - span[0] + 1);
-    for (int ey = -2; ey <= 2; ++ey)
-      for (int ex = -2; ex <= 2; ++ex)
-        if (clipped(q.x + ex, q.y + ey) && !seen[pw.index(q.x + ex, q.y + ey)])
-        {
-          seen[pw.index(q.x + ex, q.y + ey)] = 1;
-          stack[top++] = cv::Point(q.x + ex, q.y + ey);  // each pixel once: fits
-        }
-  }
-  *centre = cv::Point2d(pw.cx + mx / n, pw.cy + my / n);
-  *half_width = 0.5 * widest;
-  return true;
-}
-
 // A dot with clipped pixels near the candidate: a clipped core carries no
 // shape (and an iterated centroid can drift along a bloom streak), so a
 // Gaussian fit to the flanks locates it, started from the plateau's centroid
