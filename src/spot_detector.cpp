@@ -39,41 +39,125 @@ const MethodEntry* findMethod(SpotMethod method)
   return nullptr;
 }
 
-std::string checkImage(const cv::Mat& image, PixelFormat format)
+// The encodings, their sensor_msgs names and cv::Mat shape.
+struct FormatEntry
 {
+  PixelFormat format;
+  const char* name;
+  int channels, depth;
+};
+
+const FormatEntry kFormats[] = {
+    {PixelFormat::kBgr8, "bgr8", 3, CV_8U},
+    {PixelFormat::kRgb8, "rgb8", 3, CV_8U},
+    {PixelFormat::kBgra8, "bgra8", 4, CV_8U},
+    {PixelFormat::kRgba8, "rgba8", 4, CV_8U},
+    {PixelFormat::kMono8, "mono8", 1, CV_8U},
+    {PixelFormat::kMono16, "mono16", 1, CV_16U},
+    {PixelFormat::kBayerRggb8, "bayer_rggb8", 1, CV_8U},
+    {PixelFormat::kBayerBggr8, "bayer_bggr8", 1, CV_8U},
+    {PixelFormat::kBayerGbrg8, "bayer_gbrg8", 1, CV_8U},
+    {PixelFormat::kBayerGrbg8, "bayer_grbg8", 1, CV_8U},
+    {PixelFormat::kUyvy, "yuv422", 2, CV_8U},
+    {PixelFormat::kYuyv, "yuv422_yuy2", 2, CV_8U},
+};
+
+const FormatEntry& formatEntry(PixelFormat format)
+{
+  for (const FormatEntry& e : kFormats)
+    if (e.format == format)
+      return e;
+  return kFormats[0];
+}
+
+std::string checkImage(const cv::Mat& image, PixelFormat format, const char* what)
+{
+  const std::string w(what);
   if (image.empty() || image.rows <= 0 || image.cols <= 0)
-    return "empty image";
-  if (image.depth() != CV_8U)
-    return "image depth is not 8-bit unsigned (type " + std::to_string(image.type()) + ")";
-  if (image.channels() != channelCount(format))
-    return "image has " + std::to_string(image.channels()) + " channels, the stated encoding needs " +
-           std::to_string(channelCount(format));
+    return w + " is empty";
   if (image.dims != 2)
-    return "image is not two-dimensional";
+    return w + " is not two-dimensional";
+  if (image.depth() != matDepth(format))
+    return w + " depth does not fit " + encodingName(format) + " (" + (matDepth(format) == CV_16U ? "16" : "8") +
+           "-bit unsigned expected, type " + std::to_string(image.type()) + ")";
+  if (image.channels() != channelCount(format))
+    return w + " has " + std::to_string(image.channels()) + " channels, " + encodingName(format) + " needs " +
+           std::to_string(channelCount(format));
+  if (isBayer(format) && (image.rows < 2 || image.cols < 2))
+    return w + " is smaller than one 2 x 2 Bayer cell";
+  if ((format == PixelFormat::kUyvy || format == PixelFormat::kYuyv) && image.cols % 2 != 0)
+    return w + " has an odd width: yuv422 pairs pixels";
   return std::string();
+}
+
+std::string checkInput(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format)
+{
+  std::string error = checkImage(image, format, "image");
+  if (error.empty() && !ambient.empty())
+  {
+    error = checkImage(ambient, format, "ambient image");
+    if (error.empty() && ambient.size() != image.size())
+      error = "ambient image is " + std::to_string(ambient.cols) + "x" + std::to_string(ambient.rows) + ", the image " +
+              std::to_string(image.cols) + "x" + std::to_string(image.rows);
+  }
+  return error;
 }
 }  // namespace
 
 bool pixelFormatFromEncoding(const std::string& encoding, PixelFormat* format)
 {
-  if (encoding == "bgr8")
-    *format = PixelFormat::kBgr8;
-  else if (encoding == "rgb8")
-    *format = PixelFormat::kRgb8;
-  else if (encoding == "bgra8")
-    *format = PixelFormat::kBgra8;
-  else if (encoding == "rgba8")
-    *format = PixelFormat::kRgba8;
-  else if (encoding == "mono8" || encoding == "8UC1")
+  for (const FormatEntry& e : kFormats)
+  {
+    if (encoding == e.name)
+    {
+      *format = e.format;
+      return true;
+    }
+  }
+  // Aliases: OpenCV type names for the mono formats, and the other names drivers use for YUYV.
+  if (encoding == "8UC1")
     *format = PixelFormat::kMono8;
+  else if (encoding == "16UC1")
+    *format = PixelFormat::kMono16;
+  else if (encoding == "yuyv" || encoding == "yuv422_yuyv")
+    *format = PixelFormat::kYuyv;
+  else if (encoding == "uyvy")
+    *format = PixelFormat::kUyvy;
   else
     return false;
   return true;
 }
 
+const char* encodingName(PixelFormat format)
+{
+  return formatEntry(format).name;
+}
+
+const char* acceptedEncodings()
+{
+  return "bgr8, rgb8, bgra8, rgba8, mono8 (8UC1), mono16 (16UC1), bayer_rggb8, bayer_bggr8, bayer_gbrg8, "
+         "bayer_grbg8, yuv422 (UYVY), yuv422_yuy2 (YUYV)";
+}
+
 int channelCount(PixelFormat format)
 {
-  return layoutOf(format).step;
+  return formatEntry(format).channels;
+}
+
+int matDepth(PixelFormat format)
+{
+  return formatEntry(format).depth;
+}
+
+bool isBayer(PixelFormat format)
+{
+  return format == PixelFormat::kBayerRggb8 || format == PixelFormat::kBayerBggr8 ||
+         format == PixelFormat::kBayerGbrg8 || format == PixelFormat::kBayerGrbg8;
+}
+
+bool hasColour(PixelFormat format)
+{
+  return format != PixelFormat::kMono8 && format != PixelFormat::kMono16;
 }
 
 const char* spotMethodName(SpotMethod method)
@@ -126,16 +210,22 @@ std::vector<std::string> SpotDetector::setParams(const SpotDetectorParams& param
 SpotDetectionResult SpotDetector::detect(const cv::Mat& image, PixelFormat format, SpotDetectorDebug* debug,
                                          SpotDetectorTimings* timings)
 {
+  return detect(image, cv::Mat(), format, debug, timings);
+}
+
+SpotDetectionResult SpotDetector::detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                                         SpotDetectorDebug* debug, SpotDetectorTimings* timings)
+{
   if (debug)
     *debug = SpotDetectorDebug();
   if (timings)
     *timings = SpotDetectorTimings();
   SpotDetectionResult result;
-  result.error = checkImage(image, format);
+  result.error = checkInput(image, ambient, format);
   if (!result.error.empty())
     return result;
   StageTimer timer;
-  result = method_->detect(image, format, params_, debug, timings);
+  result = method_->detect(image, ambient, format, params_, debug, timings);
   if (timings)
     timings->total_ms = timer.lap();
   return result;
@@ -173,23 +263,38 @@ void sortIntoRows(Spots* spots, int cols, int rows, bool assign_beams)
 
 cv::Mat toBgr(const cv::Mat& image, PixelFormat format)
 {
+  // OpenCV names a Bayer pattern by the second row's first two sites (as cv_bridge maps them).
+  static const std::pair<PixelFormat, int> kCodes[] = {
+      {PixelFormat::kRgb8, cv::COLOR_RGB2BGR},           {PixelFormat::kBgra8, cv::COLOR_BGRA2BGR},
+      {PixelFormat::kRgba8, cv::COLOR_RGBA2BGR},         {PixelFormat::kMono8, cv::COLOR_GRAY2BGR},
+      {PixelFormat::kBayerRggb8, cv::COLOR_BayerBG2BGR}, {PixelFormat::kBayerBggr8, cv::COLOR_BayerRG2BGR},
+      {PixelFormat::kBayerGbrg8, cv::COLOR_BayerGR2BGR}, {PixelFormat::kBayerGrbg8, cv::COLOR_BayerGB2BGR},
+      {PixelFormat::kUyvy, cv::COLOR_YUV2BGR_UYVY},      {PixelFormat::kYuyv, cv::COLOR_YUV2BGR_YUY2},
+  };
+  if (format == PixelFormat::kBgr8)
+    return image;
   cv::Mat out;
-  switch (format)
+  if (format == PixelFormat::kMono16)
   {
-    case PixelFormat::kBgr8:
-      return image;
-    case PixelFormat::kRgb8:
-      cv::cvtColor(image, out, cv::COLOR_RGB2BGR);
-      break;
-    case PixelFormat::kBgra8:
-      cv::cvtColor(image, out, cv::COLOR_BGRA2BGR);
-      break;
-    case PixelFormat::kRgba8:
-      cv::cvtColor(image, out, cv::COLOR_RGBA2BGR);
-      break;
-    case PixelFormat::kMono8:
-      cv::cvtColor(image, out, cv::COLOR_GRAY2BGR);
-      break;
+    cv::Mat mono;
+    image.convertTo(mono, CV_8U, 1.0 / 257.0);
+    cv::cvtColor(mono, out, cv::COLOR_GRAY2BGR);
+    return out;
+  }
+  for (const auto& code : kCodes)
+  {
+    if (code.first != format)
+      continue;
+    if (isBayer(format))
+    {
+      // Demosaicing wants a few pixels around each one: pad by an even
+      // reflection (which keeps the pattern) and crop back.
+      cv::Mat padded, colour;
+      cv::copyMakeBorder(image, padded, 2, 2, 2, 2, cv::BORDER_REFLECT_101);
+      cv::cvtColor(padded, colour, code.second);
+      return colour(cv::Rect(2, 2, image.cols, image.rows)).clone();
+    }
+    cv::cvtColor(image, out, code.second);
   }
   return out;
 }

@@ -17,8 +17,9 @@ namespace
 class BaselineMethod : public SpotDetectionMethod
 {
 public:
-  SpotDetectionResult detect(const cv::Mat& image, PixelFormat format, const SpotDetectorParams& params,
-                             SpotDetectorDebug* debug, SpotDetectorTimings* timings) override;
+  SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                             const SpotDetectorParams& params, SpotDetectorDebug* debug,
+                             SpotDetectorTimings* timings) override;
 
 private:
   const cv::Mat& lowPass(const cv::Mat& image, int kernel);
@@ -28,16 +29,28 @@ private:
   Spots weightedCentroids(int regions, int weight_channel, const BaselineParams& p) const;
 
   // Scratch reused across frames.
-  cv::Mat blurred_, hsv_, mask_, labels_, stats_, centroids_;
+  cv::Mat converted_, blurred_, hsv_, mask_, labels_, stats_, centroids_;
 };
 
-SpotDetectionResult BaselineMethod::detect(const cv::Mat& image, PixelFormat format, const SpotDetectorParams& params,
-                                           SpotDetectorDebug* debug, SpotDetectorTimings* timings)
+// The study's chain works on what its camera gave, BGR (or grey): other
+// encodings are converted first (counted in the blur stage); the ambient
+// frame is not the study's and is ignored.
+SpotDetectionResult BaselineMethod::detect(const cv::Mat& image, const cv::Mat& /*ambient*/, PixelFormat format,
+                                           const SpotDetectorParams& params, SpotDetectorDebug* debug,
+                                           SpotDetectorTimings* timings)
 {
   const BaselineParams& p = params.baseline;
   StageTimer timer;
   SpotDetectorTimings tm;
-  const cv::Mat& src = lowPass(image, p.blur_kernel);
+  const bool native = format == PixelFormat::kBgr8 || format == PixelFormat::kRgb8 || format == PixelFormat::kBgra8 ||
+                      format == PixelFormat::kRgba8 || format == PixelFormat::kMono8;
+  if (format == PixelFormat::kMono16)
+    image.convertTo(converted_, CV_8U, 1.0 / 257.0);
+  else if (!native)
+    converted_ = toBgr(image, format);
+  const cv::Mat& frame = native ? image : converted_;
+  format = native ? format : (format == PixelFormat::kMono16 ? PixelFormat::kMono8 : PixelFormat::kBgr8);
+  const cv::Mat& src = lowPass(frame, p.blur_kernel);
   tm.blur_ms = timer.lap();
   const int weight_channel = colourMask(src, format, p, &tm, &timer);
   opening(p.erosions, p.dilations);

@@ -1,9 +1,8 @@
 // Stages 1-3 of the fast method: where dots may be (see
-// spot_detector_fast_stages.h).
+// spot_detector_fast_stages.h). Grid coordinates (FramePlanes) up to the
+// candidates, which are in pixels of the full frame.
 #include <algorithm>
 #include <cmath>
-
-#include <opencv2/core/hal/intrin.hpp>
 
 #include "spot_detector_fast_stages.h"
 
@@ -12,129 +11,22 @@ namespace structured_light_stabilizer
 namespace fast_detector
 {
 
-PixelScore::PixelScore(PixelFormat format, double red_weight)
-  : layout(layoutOf(format)),
-    k256(static_cast<int>(std::lround(red_weight * 256.0))),
-    mono(format == PixelFormat::kMono8)
-{
-}
-
 // ---------------------------------------------------------------------------
 // Stage 1: threshold pass.
 
-namespace
-{
-inline void markPixel(std::vector<Run>* runs, int y, int x)
-{
-  if (!runs->empty() && runs->back().y == y && runs->back().x1 == x - 1)
-    runs->back().x1 = x;
-  else
-    runs->push_back({y, x, x});
-}
-
-#if CV_SIMD128
-// k * r / 256 for 16 pixels, through 16-bit lanes.
-inline cv::v_uint8x16 scaleRed(const cv::v_uint8x16& r, const cv::v_uint16x8& k)
-{
-  cv::v_uint16x8 lo, hi;
-  cv::v_expand(r, lo, hi);
-  return cv::v_pack(cv::v_shr<8>(cv::v_mul_wrap(lo, k)), cv::v_shr<8>(cv::v_mul_wrap(hi, k)));
-}
-#endif
-
-// Candidate pixels of one row, appended as runs. A block of 16 pixels
-// without a candidate costs a deinterleaving load, a few multiply/max/
-// saturating-subtract operations and one test. kRedFirst: byte 0 is red
-// (rgb8, rgba8). acc (may be null) accumulates every pixel's score, for the
-// coarse pass.
-template <int kChannels, bool kRedFirst>
-void rowRuns(const uint8_t* row, int width, int y, int threshold, int k256, std::vector<Run>* runs, uint16_t* acc)
-{
-  int x = 0;
-#if CV_SIMD128
-  const cv::v_uint8x16 vthr = cv::v_setall_u8(static_cast<uint8_t>(threshold));
-  const cv::v_uint16x8 vk = cv::v_setall_u16(static_cast<uint16_t>(k256));
-  alignas(16) uint8_t hit[16];
-  for (; x + 16 <= width; x += 16)
-  {
-    cv::v_uint8x16 s;
-    if (kChannels == 1)
-    {
-      s = cv::v_load(row + x);
-    }
-    else
-    {
-      cv::v_uint8x16 c0, c1, c2, c3;
-      if (kChannels == 3)
-        cv::v_load_deinterleave(row + 3 * x, c0, c1, c2);
-      else
-        cv::v_load_deinterleave(row + 4 * x, c0, c1, c2, c3);
-      const cv::v_uint8x16& r = kRedFirst ? c0 : c2;
-      const cv::v_uint8x16& b = kRedFirst ? c2 : c0;
-      s = c1 - cv::v_max(scaleRed(r, vk), b);  // saturating
-    }
-    if (acc)
-    {
-      cv::v_uint16x8 lo, hi;
-      cv::v_expand(s, lo, hi);
-      cv::v_store(acc + x, cv::v_load(acc + x) + lo);
-      cv::v_store(acc + x + 8, cv::v_load(acc + x + 8) + hi);
-    }
-    const cv::v_uint8x16 m = s >= vthr;
-    if (!cv::v_check_any(m))
-      continue;
-    cv::v_store(hit, m);
-    for (int i = 0; i < 16; ++i)
-      if (hit[i])
-        markPixel(runs, y, x + i);
-  }
-#endif
-  const PixelLayout L = kRedFirst ? PixelLayout{0, 1, 2, kChannels} : PixelLayout{2, 1, 0, kChannels};
-  for (; x < width; ++x)
-  {
-    const uint8_t* px = row + kChannels * x;
-    const int score = kChannels == 1 ? int(px[0]) : greenness(px, L, k256);
-    if (acc)
-      acc[x] = static_cast<uint16_t>(acc[x] + score);
-    if (score >= threshold)
-      markPixel(runs, y, x);
-  }
-}
-
-using RowPass = void (*)(const uint8_t*, int, int, int, int, std::vector<Run>*, uint16_t*);
-
-RowPass rowPassFor(PixelFormat format)
-{
-  switch (format)
-  {
-    case PixelFormat::kBgr8:
-      return &rowRuns<3, false>;
-    case PixelFormat::kRgb8:
-      return &rowRuns<3, true>;
-    case PixelFormat::kBgra8:
-      return &rowRuns<4, false>;
-    case PixelFormat::kRgba8:
-      return &rowRuns<4, true>;
-    case PixelFormat::kMono8:
-      break;
-  }
-  return &rowRuns<1, false>;
-}
-}  // namespace
-
-void ThresholdPass::run(const cv::Mat& image, PixelFormat format, int threshold, int k256, bool coarse)
+void ThresholdPass::run(FramePlanes* planes, bool coarse)
 {
   runs_.clear();
+  const int cols = planes->cols(), rows = planes->rows();
   if (coarse)
   {
-    coarse_.create(image.rows / kBin, image.cols / kBin, CV_8UC1);
-    column_sums_.assign(static_cast<size_t>(image.cols) + 16, 0);
+    coarse_.create(rows / kBin, cols / kBin, CV_8UC1);
+    column_sums_.assign(static_cast<size_t>(cols) + 16, 0);
   }
-  const RowPass row_pass = rowPassFor(format);
-  for (int y = 0; y < image.rows; ++y)
+  for (int y = 0; y < rows; ++y)
   {
     uint16_t* score_row = coarse && y / kBin < coarse_.rows ? column_sums_.data() : nullptr;
-    row_pass(image.ptr<uint8_t>(y), image.cols, y, threshold, k256, &runs_, score_row);
+    planes->rowRuns(y, &runs_, score_row);
     if (score_row && y % kBin == kBin - 1)
     {
       uint8_t* out = coarse_.ptr<uint8_t>(y / kBin);
@@ -179,12 +71,11 @@ void joinRows(const std::vector<Run>& runs, int prev_begin, int prev_end, int be
   }
 }
 
-void addRun(const Run& run, const cv::Mat& image, const PixelScore& score, Blob* b)
+void addRun(const Run& run, const FramePlanes& planes, Blob* b)
 {
-  const uint8_t* row = image.ptr<uint8_t>(run.y);
   for (int x = run.x0; x <= run.x1; ++x)
   {
-    const int s = score.at(row + x * score.layout.step);
+    const int s = planes.scoreAt(x, run.y);
     ++b->count;
     b->sum += s;
     b->sx += double(s) * x;
@@ -203,8 +94,7 @@ void addRun(const Run& run, const cv::Mat& image, const PixelScore& score, Blob*
 }
 }  // namespace
 
-const std::vector<Blob>& BlobLabeller::label(const std::vector<Run>& runs, const cv::Mat& image,
-                                             const PixelScore& score)
+const std::vector<Blob>& BlobLabeller::label(const std::vector<Run>& runs, const FramePlanes& planes)
 {
   const int n = static_cast<int>(runs.size());
   parent_.resize(n);
@@ -235,7 +125,7 @@ const std::vector<Blob>& BlobLabeller::label(const std::vector<Run>& runs, const
       blobs_.emplace_back();
     }
     run_blob_[i] = root_blob_[r];
-    addRun(runs[i], image, score, &blobs_[root_blob_[r]]);
+    addRun(runs[i], planes, &blobs_[root_blob_[r]]);
   }
   return blobs_;
 }
@@ -243,19 +133,31 @@ const std::vector<Blob>& BlobLabeller::label(const std::vector<Run>& runs, const
 // ---------------------------------------------------------------------------
 // Stage 3: candidates.
 
-void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, bool mono,
+void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, const FramePlanes& planes,
                        std::vector<Candidate>* candidates)
 {
-  for (size_t k = 0; k < blobs.size(); ++k)
+  const int k = planes.scale();
+  const int min_count = std::max(1, p.min_pixels / (k * k));
+  for (size_t i = 0; i < blobs.size(); ++i)
   {
-    const Blob& b = blobs[k];
-    if (b.count < p.min_pixels || (!mono && b.peak < p.min_peak) || !(b.sum > 0))
+    const Blob& b = blobs[i];
+    if (b.count < min_count || b.peak < planes.peakThreshold(p.min_peak) || !(b.sum > 0))
       continue;  // noise: not worth a line in the debug output
     // First guess of sigma from the candidate area: a Gaussian exceeds a
     // threshold within ~2 sigma of its centre for typical peak/threshold ratios.
-    const double radius = 0.5 * std::max(b.x1 - b.x0 + 1, b.y1 - b.y0 + 1);
-    candidates->push_back({b.sx / b.sum, b.sy / b.sum, std::min(std::max(0.5 * radius, 1.0), p.max_sigma_px), b.count,
-                           b.x0, b.y0, b.x1, b.y1, b.peak_x, b.peak_y, static_cast<int>(k)});
+    const double radius = 0.5 * k * std::max(b.x1 - b.x0 + 1, b.y1 - b.y0 + 1);
+    Candidate c{planes.toPixel(b.sx / b.sum),
+                planes.toPixel(b.sy / b.sum),
+                std::min(std::max(0.5 * radius, 1.0), p.max_sigma_px),
+                b.count * k * k,
+                k * b.x0,
+                k * b.y0,
+                k * b.x1 + k - 1,
+                k * b.y1 + k - 1};
+    c.peak_x = static_cast<int>(std::lround(planes.toPixel(b.peak_x)));
+    c.peak_y = static_cast<int>(std::lround(planes.toPixel(b.peak_y)));
+    c.blob = static_cast<int>(i);
+    candidates->push_back(c);
   }
 }
 
@@ -305,9 +207,11 @@ CellRegion floodCells(const cv::Mat& coarse, cv::Mat* mask, int x, int y, std::v
 }
 }  // namespace
 
-int CoarseCandidates::add(const cv::Mat& coarse, int threshold, double max_sigma_px, std::vector<Candidate>* candidates)
+int CoarseCandidates::add(const cv::Mat& coarse, int threshold, double max_sigma_px, const FramePlanes& planes,
+                          std::vector<Candidate>* candidates)
 {
-  constexpr int kBin = ThresholdPass::kBin;
+  // Block size in pixels of the full frame (candidates are in pixels).
+  const int kBin = ThresholdPass::kBin * planes.scale();
   cv::compare(coarse, cv::Scalar(threshold), mask_, cv::CMP_GE);
   // Cells already explained by a full-resolution candidate are skipped.
   for (const Candidate& c : *candidates)
@@ -337,11 +241,10 @@ int CoarseCandidates::add(const cv::Mat& coarse, int threshold, double max_sigma
 // ---------------------------------------------------------------------------
 // Stage 3c: further dots of a blob.
 
-void BlobSplitter::reset(const cv::Mat& image, const PixelScore& score, const std::vector<Run>& runs,
-                         const std::vector<int>& run_blob, const std::vector<Blob>& blobs)
+void BlobSplitter::reset(const FramePlanes& planes, const std::vector<Run>& runs, const std::vector<int>& run_blob,
+                         const std::vector<Blob>& blobs)
 {
-  image_ = &image;
-  score_ = &score;
+  planes_ = &planes;
   runs_ = &runs;
   blobs_ = &blobs;
   const int n = static_cast<int>(runs.size());
@@ -359,26 +262,29 @@ void BlobSplitter::reset(const cv::Mat& image, const PixelScore& score, const st
     discs_[k].clear();
 }
 
+// Discs are kept in grid units; the callers speak pixels of the full frame.
 bool BlobSplitter::explained(int blob, double x, double y) const
 {
+  const double k = planes_->scale(), off = 0.5 * (k - 1);
+  const double gx = (x - off) / k, gy = (y - off) / k;
   bool inside = false;
   for (const cv::Vec3d& d : discs_[blob])
-    inside = inside || std::hypot(x - d[0], y - d[1]) < d[2];
+    inside = inside || std::hypot(gx - d[0], gy - d[1]) < d[2];
   return inside;
 }
 
-// A dot stands out of the blob around it: the median greenness on a ring of
+// A dot stands out of the blob around it: the median score on a ring of
 // `radius` (2 sigma: the frame's dots share a size) is at most half its peak
 // g. Noise maxima on a bright rock bridge and points on a dot's flank do not
 // (a flank has the dot on one side of its ring); each would cost a
 // refinement that leads nowhere or back to a dot already found.
-bool BlobSplitter::prominent(int x, int y, int g, int radius, int min_peak) const
+bool BlobSplitter::prominent(int gx, int gy, int g, int radius, int min_peak) const
 {
   const int R = radius, Rd = static_cast<int>(std::lround(R * M_SQRT1_2));
   const int ring_dx[8] = {R, -R, 0, 0, Rd, Rd, -Rd, -Rd}, ring_dy[8] = {0, 0, R, -R, Rd, -Rd, Rd, -Rd};
   int v[8];
   for (int k = 0; k < 8; ++k)
-    v[k] = std::max(0, score_->greennessAt(*image_, x + ring_dx[k], y + ring_dy[k]));
+    v[k] = std::max(0, planes_->scoreAt(gx + ring_dx[k], gy + ring_dy[k]));
   std::sort(v, v + 8);
   return 2 * g - (v[3] + v[4]) >= 2 * std::max(min_peak, g / 2);
 }
@@ -386,13 +292,14 @@ bool BlobSplitter::prominent(int x, int y, int g, int radius, int min_peak) cons
 bool BlobSplitter::nextSeed(const Candidate& c, double x, double y, double s, int min_peak, double max_sigma_px,
                             Candidate* seed)
 {
+  const double k = planes_->scale(), off = 0.5 * (k - 1);
   std::vector<cv::Vec3d>& disc = discs_[c.blob];
-  disc.emplace_back(x, y, std::max(3.0 * s, 4.0) + 1.0);
+  disc.emplace_back((x - off) / k, (y - off) / k, (std::max(3.0 * s, 4.0) + 1.0) / k);
   const Blob& b = (*blobs_)[c.blob];
   // Small blobs are one dot (a cheap early out for nearly every blob).
   if (std::max(b.x1 - b.x0, b.y1 - b.y0) + 1 <= 2 * disc.back()[2] || disc.size() > 8)
     return false;
-  const int radius = std::max(2, static_cast<int>(std::lround(2.0 * s)));
+  const int radius = std::max(2, static_cast<int>(std::lround(2.0 * s / k)));
   int best = min_peak - 1, bx = -1, by = -1;
   for (int ri = run_start_[c.blob]; ri < run_start_[c.blob + 1]; ++ri)
   {
@@ -404,13 +311,13 @@ bool BlobSplitter::nextSeed(const Candidate& c, double x, double y, double s, in
         inside = inside || (px - d[0]) * (px - d[0]) + (run.y - d[1]) * (run.y - d[1]) < d[2] * d[2];
       if (inside)
         continue;
-      const int g = score_->greennessAt(*image_, px, run.y);
+      const int g = planes_->scoreAt(px, run.y);
       if (g <= best)
         continue;
       bool local_max = true;
       for (int dy = -1; dy <= 1 && local_max; ++dy)
         for (int dx = -1; dx <= 1 && local_max; ++dx)
-          local_max = (dx == 0 && dy == 0) || score_->greennessAt(*image_, px + dx, run.y + dy) <= g;
+          local_max = (dx == 0 && dy == 0) || planes_->scoreAt(px + dx, run.y + dy) <= g;
       if (local_max && prominent(px, run.y, g, radius, min_peak))
       {
         best = g;
@@ -422,11 +329,11 @@ bool BlobSplitter::nextSeed(const Candidate& c, double x, double y, double s, in
   if (bx < 0)
     return false;
   *seed = c;
-  seed->x = bx;
-  seed->y = by;
+  seed->x = planes_->toPixel(bx);
+  seed->y = planes_->toPixel(by);
   seed->sigma0 = std::min(std::max(s, 1.0), max_sigma_px);
-  seed->peak_x = bx;
-  seed->peak_y = by;
+  seed->peak_x = static_cast<int>(std::lround(seed->x));
+  seed->peak_y = static_cast<int>(std::lround(seed->y));
   seed->seed = true;
   return true;
 }

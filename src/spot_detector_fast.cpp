@@ -1,7 +1,12 @@
 // SpotMethod::kFast: the stages of spot_detector_fast_stages.h chained, and
-// the decisions on their results: which refined candidates are dots
-// (acceptance tests), which of them are the same dot (de-duplication), and
-// which disagree with the rest of the frame (frame checks).
+// the decisions on their results: which refined candidates are plausible dots
+// (acceptance tests: a dot's size, the projector's colour, staying on its
+// blob) and which of them are the same dot (de-duplication). There is no
+// test against the rest of the frame: the size and energy of a dot change
+// with its depth (defocus, inverse square), incidence, albedo and clipping,
+// so a frame's median says nothing about one dot (issue #14 measured 19-21
+// genuine dots dropped per frame by such tests). Clutter of the projector's
+// colour and a dot's size is the Triangulator's to reject, by geometry.
 #include <algorithm>
 #include <cmath>
 #include <string>
@@ -33,41 +38,55 @@ void reject(SpotDetectorDebug* debug, double x, double y, const std::string& why
 class FastMethod : public SpotDetectionMethod
 {
 public:
-  SpotDetectionResult detect(const cv::Mat& image, PixelFormat format, const SpotDetectorParams& params,
-                             SpotDetectorDebug* debug, SpotDetectorTimings* timings) override;
+  FastMethod() : scratch_(new RefineScratch) {}
+  SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                             const SpotDetectorParams& params, SpotDetectorDebug* debug,
+                             SpotDetectorTimings* timings) override;
 
 private:
-  void findCandidates(const cv::Mat& image, PixelFormat format, const FastParams& p, const PixelScore& score,
-                      SpotDetectorDebug* debug, SpotDetectorTimings* tm, StageTimer* timer);
-  std::vector<KeptSpot> refineCandidates(const cv::Mat& image, const FastParams& p, const PixelScore& score,
-                                         SpotDetectorDebug* debug);
+  void findCandidates(const FastParams& p, SpotDetectorDebug* debug);
+  std::vector<KeptSpot> refineCandidates(const FastParams& p, SpotDetectorDebug* debug);
 
   // Scratch reused across frames (no per-frame allocation in the hot path).
+  FramePlanes planes_;
+  std::unique_ptr<RefineScratch> scratch_;
   ThresholdPass threshold_pass_;
   BlobLabeller labeller_;
   CoarseCandidates coarse_;
   BlobSplitter splitter_;
   std::vector<Candidate> candidates_;
+  double threshold_ms_ = 0;
 };
 
 // ---------------------------------------------------------------------------
 // Acceptance tests of one refined candidate.
 
-// Fits the candidate; false when no fit stands. A dot on a green-ish
-// pedestal (an olive mineral, a neighbour's flank) grows the adaptive window
-// over the pedestal: then the fit is retried from the strongest pixel in a
-// small fixed window, whose border lies on the pedestal and subtracts it.
-bool fitCandidate(const cv::Mat& image, const Candidate& c, const FastParams& p, const PixelScore& score, SpotFit* fit)
+RefineSettings refineSettings(const FastParams& p)
 {
-  const PixelLayout& L = score.layout;
-  const int red_ch = score.mono || !p.subtract_rock_texture ? -1 : L.r;
-  bool ok = refineSpot(image, L.step, L.g, red_ch, c.x, c.y, c.sigma0, p.window_radius_px, p.max_sigma_px, fit);
+  RefineSettings rs;
+  rs.fixed_radius = p.window_radius_px;
+  rs.max_sigma = p.max_sigma_px;
+  rs.subtract_texture = p.subtract_rock_texture;
+  rs.normalise_albedo = p.normalise_albedo;
+  rs.albedo_floor_dn = p.albedo_floor_dn;
+  return rs;
+}
+
+// Fits the candidate; false when no fit stands. A dot on a pedestal of the
+// projector's colour (an olive mineral, a neighbour's flank) grows the
+// adaptive window over the pedestal: then the fit is retried from the
+// strongest pixel in a small fixed window, whose border lies on the pedestal
+// and subtracts it.
+bool fitCandidate(const FramePlanes& planes, const Candidate& c, const FastParams& p, RefineScratch* scratch,
+                  SpotFit* fit)
+{
+  const RefineSettings rs = refineSettings(p);
+  bool ok = refineSpot(planes, rs, c.x, c.y, c.sigma0, p.window_radius_px, scratch, fit);
   if ((!ok || fit->sigma > p.max_sigma_px) && c.peak_x >= 0 && p.window_radius_px == 0)
   {
     SpotFit retry;
     // Only a real peak on the pedestal counts.
-    if (refineSpot(image, L.step, L.g, red_ch, c.peak_x, c.peak_y, 1.5, 5, p.max_sigma_px, &retry) &&
-        gaussianAmplitude(retry) >= p.min_peak)
+    if (refineSpot(planes, rs, c.peak_x, c.peak_y, 1.5, 5, scratch, &retry) && retry.amplitude >= p.min_peak)
     {
       *fit = retry;
       fit->on_pedestal = true;
@@ -78,43 +97,41 @@ bool fitCandidate(const cv::Mat& image, const Candidate& c, const FastParams& p,
 }
 
 // The colour test (ColourTestParams); empty when the colour is the LED's.
-std::string colourRejection(const SpotFit& r, const ColourTestParams& p)
+std::string colourRejection(const SpotFit& r, const ColourTestParams& p, const ColourModel& model)
 {
+  const double led_ref = model.led_reference, led_third = model.led_third;
   // The red test sees the rock texture as much as the spot: off by default.
   // Red above the LED's: olive and yellow minerals (R = G) carry their own
   // red; the slack covers what rock texture alone can add.
-  bool red_bad = p.max_red_excess > 0 && r.red_ratio > p.led_red_ratio + p.max_red_excess + r.red_slack;
-  red_bad = red_bad || (p.max_red_deficit > 0 && r.red_ratio < p.led_red_ratio - p.max_red_deficit - r.red_slack);
+  bool red_bad = p.max_red_excess > 0 && r.red_ratio > led_ref + p.max_red_excess + r.red_slack;
+  red_bad = red_bad || (p.max_red_deficit > 0 && r.red_ratio < led_ref - p.max_red_deficit - r.red_slack);
   // A spot on a pedestal is suspect: the pedestal is often an olive or
   // yellow mineral, whose own red shows up as extra red excess.
-  red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - p.led_red_ratio) > p.max_chroma_error);
-  if (!std::isfinite(r.blue_ratio) || red_bad || std::abs(r.blue_ratio - p.led_blue_ratio) > p.max_chroma_error)
-    return "colour: red/green " + std::to_string(r.red_ratio) + ", blue/green " + std::to_string(r.blue_ratio);
+  red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - led_ref) > p.max_chroma_error);
+  if (!std::isfinite(r.blue_ratio) || red_bad || std::abs(r.blue_ratio - led_third) > p.max_chroma_error)
+    return "colour: reference/signal " + std::to_string(r.red_ratio) + ", third/signal " + std::to_string(r.blue_ratio);
   return std::string();
 }
 
-// Why a fitted candidate is not a dot; empty when it is. Sets r->clipped and
-// the colour ratios.
-std::string spotRejection(const cv::Mat& image, const Candidate& c, const FastParams& p, const PixelScore& score,
+// Why a fitted candidate is not a dot; empty when it is. Measures the colour
+// of its added light on the way (from scratch's final window).
+std::string spotRejection(const FramePlanes& planes, const Candidate& c, const FastParams& p, RefineScratch* scratch,
                           SpotFit* r)
 {
   if (r->sigma < p.min_sigma_px || r->sigma > p.max_sigma_px)
     return "sigma " + std::to_string(r->sigma) + " px out of range";
   // A clipped core carries no colour, and its unclipped flanks too little
-  // excess to judge by: the green ring that made the blob vouches for it.
-  const PixelLayout& L = score.layout;
-  const uint8_t* core =
-      image.ptr<uint8_t>(static_cast<int>(std::lround(r->y))) + static_cast<int>(std::lround(r->x)) * L.step;
-  const bool clipped =
-      core[L.r] >= p.saturation_level || core[L.g] >= p.saturation_level || core[L.b] >= p.saturation_level;
-  // The fit's weight channel clipped (red alone clips on bright sunlit rock
-  // and leaves the dot's shape intact).
-  r->clipped = core[L.g] >= p.saturation_level;
-  if (!score.mono && !clipped)
+  // excess to judge by: the ring of the projector's colour that made the
+  // blob vouches for it.
+  if (planes.colourPath() && !r->clipped)
   {
-    const ColourTestParams& colour = p.colour_test;
-    measureColour(image, L, p.saturation_level, colour.led_red_ratio, colour.led_blue_ratio, r);
-    std::string why = colourRejection(*r, colour);
+    // The planes of the fit's own window (a failed retry may have left another's).
+    const int H = (r->window.width - 1) / 2;
+    const PlaneWindow& w = scratch->planes;
+    if (w.cx != r->window.x + H || w.cy != r->window.y + H || w.H != H)
+      planes.fillWindow(r->window.x + H, r->window.y + H, H, &scratch->planes);
+    measureColour(scratch->planes, planes.model(), r);
+    std::string why = colourRejection(*r, p.colour_test, planes.model());
     if (!why.empty())
       return why;
   }
@@ -128,15 +145,18 @@ std::string spotRejection(const cv::Mat& image, const Candidate& c, const FastPa
 // ---------------------------------------------------------------------------
 // De-duplication and frame checks.
 
-// A dot whose saturated core splits its candidate ring into pieces gives
-// several blobs that refine to the same centre: the strongest is kept, the
-// others are marked in the returned vector.
+// A dot whose saturated core splits its candidate ring into pieces, or a
+// coarse or split seed next to a blob, gives several refinements that end on
+// the same dot: the one of the highest fitted peak is kept (a refinement that
+// grew over the dot and its surroundings has a larger flux but a lower
+// peak), the others are marked in the returned vector.
 std::vector<char> markDuplicates(const std::vector<KeptSpot>& kept)
 {
   std::vector<size_t> order(kept.size());
   for (size_t i = 0; i < order.size(); ++i)
     order[i] = i;
-  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return kept[a].fit.flux > kept[b].fit.flux; });
+  std::sort(order.begin(), order.end(),
+            [&](size_t a, size_t b) { return kept[a].fit.amplitude > kept[b].fit.amplitude; });
   std::vector<char> drop(kept.size(), 0);
   for (size_t i = 0; i < order.size(); ++i)
   {
@@ -152,103 +172,6 @@ std::vector<char> markDuplicates(const std::vector<KeptSpot>& kept)
     }
   }
   return drop;
-}
-
-// Peak contrast and energy relative to the local background. The +4 DN
-// keeps both finite at night (no background) without letting noise in the
-// background decide.
-double contrast(const SpotFit& r)
-{
-  return gaussianAmplitude(r) / (std::max(0.0, r.background) + 4.0);
-}
-
-double energy(const SpotFit& r)
-{
-  return r.flux / (std::max(0.0, r.background) + 4.0);
-}
-
-// The frame's medians of sigma, contrast and energy (upper medians). A
-// clipped core widens the fitted sigma and shortens the flux: the medians
-// come from unclipped spots when there are enough of them (skip_clipped),
-// and clipped spots then skip the size and energy tests.
-struct FrameMedians
-{
-  double sigma = 0, contrast = 0, energy = 0;
-  bool skip_clipped = false;
-};
-
-FrameMedians frameMedians(const std::vector<KeptSpot>& kept, const std::vector<size_t>& alive)
-{
-  FrameMedians m;
-  int unclipped = 0;
-  for (size_t i : alive)
-    unclipped += kept[i].fit.clipped ? 0 : 1;
-  m.skip_clipped = unclipped >= 3;
-  std::vector<double> sig, con, ene;
-  for (size_t i : alive)
-  {
-    if (m.skip_clipped && kept[i].fit.clipped)
-      continue;
-    sig.push_back(kept[i].fit.sigma);
-    con.push_back(contrast(kept[i].fit));
-    ene.push_back(energy(kept[i].fit));
-  }
-  m.sigma = detail::medianInPlace(sig.begin(), sig.end());
-  m.contrast = detail::medianInPlace(con.begin(), con.end());
-  m.energy = std::max(1e-9, detail::medianInPlace(ene.begin(), ene.end()));
-  return m;
-}
-
-// Why a spot disagrees with the frame (FrameCheckParams); empty when it fits.
-std::string frameRejection(const SpotFit& r, const FrameMedians& med, const FrameCheckParams& p)
-{
-  const bool shape_known = !(med.skip_clipped && r.clipped);
-  const double sr = r.sigma / med.sigma, er = energy(r) / med.energy;
-  // A dot on a slope is foreshortened across the slope only: below the
-  // sigma floor, a spot whose long axis keeps the frame's size (at least
-  // halfway from the floor to the median) is such a dot; a speck is small
-  // both ways (measured: foreshortened dots 0.96-0.97, the closest speck
-  // 0.92 of the median, with a mean sigma of 0.88-0.90).
-  const bool foreshortened = r.sigma_major / med.sigma >= 0.5 * (1.0 + p.min_sigma_fraction);
-  const bool too_small = p.min_sigma_fraction > 0 && sr < p.min_sigma_fraction && !foreshortened;
-  const bool off_size =
-      (p.size_band_low > 0 && sr < p.size_band_low) || (p.size_band_high > 0 && sr > p.size_band_high);
-  const bool off_energy =
-      (p.energy_band_low > 0 && er < p.energy_band_low) || (p.energy_band_high > 0 && er > p.energy_band_high);
-  if (shape_known && (too_small || (p.max_sigma_factor > 0 && sr > p.max_sigma_factor)))
-    return "sigma " + std::to_string(r.sigma) + " px far from the frame's median " + std::to_string(med.sigma);
-  if (p.max_contrast_factor > 0 && contrast(r) > p.max_contrast_factor * med.contrast)
-    return "contrast " + std::to_string(contrast(r)) + " above " + std::to_string(p.max_contrast_factor) +
-           " x the frame's median " + std::to_string(med.contrast);
-  if (shape_known && p.min_energy_fraction > 0 && er < p.min_energy_fraction)
-    return "energy " + std::to_string(er) + " x the frame's median: not lit by the projector";
-  if (shape_known && off_size && off_energy)
-    return "both size (" + std::to_string(sr) + ") and energy (" + std::to_string(er) + ") off the frame's medians";
-  return std::string();
-}
-
-// Frame-level consistency (see FrameCheckParams): outliers from the frame's
-// median size and energy are clutter. Marks them in drop; only when enough
-// spots survived the de-duplication to make the medians meaningful.
-void frameChecks(const std::vector<KeptSpot>& kept, const FrameCheckParams& p, std::vector<char>* drop,
-                 SpotDetectorDebug* debug)
-{
-  std::vector<size_t> alive;
-  for (size_t i = 0; i < kept.size(); ++i)
-    if (!(*drop)[i])
-      alive.push_back(i);
-  if (static_cast<int>(alive.size()) < std::max(1, p.consistency_min_spots))
-    return;
-  const FrameMedians medians = frameMedians(kept, alive);
-  for (size_t i : alive)
-  {
-    const std::string why = frameRejection(kept[i].fit, medians, p);
-    if (!why.empty())
-    {
-      (*drop)[i] = 1;
-      reject(debug, kept[i].fit.x, kept[i].fit.y, why);
-    }
-  }
 }
 
 // The spots not dropped, in the order found, and their fits.
@@ -268,6 +191,31 @@ Spots survivors(const std::vector<KeptSpot>& kept, const std::vector<char>& drop
     fits->push_back(kept[i].fit);
   }
   return spots;
+}
+
+// The quality of each (sorted) spot, from its fit. The noise floor of 0.5 DN
+// stands for quantisation on a noise-free border.
+std::vector<SpotQuality> qualities(const Spots& spots, const std::vector<SpotFit>& fits)
+{
+  std::vector<SpotQuality> out;
+  out.reserve(spots.size());
+  for (const Spot& s : spots)
+  {
+    SpotQuality q;
+    for (const SpotFit& r : fits)
+    {
+      if (r.x == s.x && r.y == s.y)
+      {
+        q.snr = static_cast<float>(r.amplitude / std::max(0.5, r.noise));
+        q.sigma_px = static_cast<float>(r.sigma);
+        q.clipped = r.clipped;
+        q.albedo_normalised = r.normalised;
+        break;
+      }
+    }
+    out.push_back(q);
+  }
+  return out;
 }
 
 // Per-spot debug data in the order of the (sorted) spots.
@@ -291,29 +239,34 @@ void addSpotDebug(const Spots& spots, const std::vector<SpotFit>& fits, SpotDete
 // ---------------------------------------------------------------------------
 // The pipeline.
 
-SpotDetectionResult FastMethod::detect(const cv::Mat& image, PixelFormat format, const SpotDetectorParams& params,
-                                       SpotDetectorDebug* debug, SpotDetectorTimings* timings)
+SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                                       const SpotDetectorParams& params, SpotDetectorDebug* debug,
+                                       SpotDetectorTimings* timings)
 {
   const FastParams& p = params.fast;
   StageTimer timer;
   SpotDetectorTimings tm;
-  const PixelScore score(format, p.red_weight);
-  findCandidates(image, format, p, score, debug, &tm, &timer);
-  const std::vector<KeptSpot> kept = refineCandidates(image, p, score, debug);
-  std::vector<char> drop = markDuplicates(kept);
-  frameChecks(kept, p.frame_checks, &drop, debug);
+  planes_.bind(image, ambient, format, params.projector_color, p);
+  findCandidates(p, debug);
+  tm.threshold_ms = threshold_ms_;
+  tm.labelling_ms = timer.lap() - threshold_ms_;
+  const std::vector<KeptSpot> kept = refineCandidates(p, debug);
+  const std::vector<char> drop = markDuplicates(kept);
   std::vector<SpotFit> fits;
   Spots spots = survivors(kept, drop, &fits);
   tm.refine_ms = timer.lap();
 
   // Row-major order for readability; beams are the Triangulator's business.
   sortIntoRows(&spots, params.projector_cols, params.projector_rows, false);
+  SpotDetectionResult result;
+  result.quality = qualities(spots, fits);
   if (debug)
   {
     debug->candidates = static_cast<int>(candidates_.size());
     addSpotDebug(spots, fits, debug);
+    for (const SpotQuality& q : result.quality)
+      debug->fitted += q.clipped ? 1 : 0;
   }
-  SpotDetectionResult result;
   result.spots = std::move(spots);
   if (timings)
     *timings = tm;
@@ -322,40 +275,39 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, PixelFormat format,
 }
 
 // Stages 1-3a/b: fills candidates_ (and the blobs the splitter needs).
-void FastMethod::findCandidates(const cv::Mat& image, PixelFormat format, const FastParams& p, const PixelScore& score,
-                                SpotDetectorDebug* debug, SpotDetectorTimings* tm, StageTimer* timer)
+void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
 {
   constexpr int kBin = ThresholdPass::kBin;
-  const bool coarse = p.coarse_threshold > 0 && !score.mono && image.rows >= 2 * kBin && image.cols >= 2 * kBin;
-  threshold_pass_.run(image, format, score.mono ? p.mono_threshold : p.detect_threshold, score.k256, coarse);
-  tm->threshold_ms = timer->lap();
+  StageTimer timer;
+  const bool coarse =
+      p.coarse_threshold > 0 && planes_.colourPath() && planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
+  threshold_pass_.run(&planes_, coarse);
+  threshold_ms_ = timer.lap();
 
-  const std::vector<Blob>& blobs = labeller_.label(threshold_pass_.runs(), image, score);
+  const std::vector<Blob>& blobs = labeller_.label(threshold_pass_.runs(), planes_);
   candidates_.clear();
-  addBlobCandidates(blobs, p, score.mono, &candidates_);
+  addBlobCandidates(blobs, p, planes_, &candidates_);
   if (coarse)
   {
-    const int added = coarse_.add(threshold_pass_.coarse(), p.coarse_threshold, p.max_sigma_px, &candidates_);
+    const int added = coarse_.add(threshold_pass_.coarse(), p.coarse_threshold, p.max_sigma_px, planes_, &candidates_);
     if (debug)
       debug->coarse_candidates = added;
   }
-  tm->labelling_ms = timer->lap();
 }
 
 // Stage 4 and the acceptance tests, candidate by candidate; blobs holding
 // several dots append their further seeds to candidates_ on the way.
-std::vector<KeptSpot> FastMethod::refineCandidates(const cv::Mat& image, const FastParams& p, const PixelScore& score,
-                                                   SpotDetectorDebug* debug)
+std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug)
 {
-  const bool split = !score.mono;
+  const bool split = true;
   if (split)
-    splitter_.reset(image, score, threshold_pass_.runs(), labeller_.runBlob(), labeller_.blobs());
+    splitter_.reset(planes_, threshold_pass_.runs(), labeller_.runBlob(), labeller_.blobs());
   std::vector<KeptSpot> kept;
   for (size_t ci = 0; ci < candidates_.size(); ++ci)
   {
     const Candidate c = candidates_[ci];  // a copy: new seeds grow the vector
     SpotFit r;
-    const bool ok = fitCandidate(image, c, p, score, &r);
+    const bool ok = fitCandidate(planes_, c, p, scratch_.get(), &r);
     if (split && c.blob >= 0)
     {
       // A seed on a dot's pedestal (a mineral, a bright rock bridge) can
@@ -366,8 +318,9 @@ std::vector<KeptSpot> FastMethod::refineCandidates(const cv::Mat& image, const F
       const int px = c.peak_x >= 0 ? c.peak_x : static_cast<int>(std::lround(c.x));
       const int py = c.peak_y >= 0 ? c.peak_y : static_cast<int>(std::lround(c.y));
       Candidate seed;
-      if (fits ? splitter_.nextSeed(c, r.x, r.y, r.sigma, p.min_peak, p.max_sigma_px, &seed)
-               : splitter_.nextSeed(c, px, py, 1.5, p.min_peak, p.max_sigma_px, &seed))
+      const int min_peak = planes_.peakThreshold(p.min_peak);
+      if (fits ? splitter_.nextSeed(c, r.x, r.y, r.sigma, min_peak, p.max_sigma_px, &seed)
+               : splitter_.nextSeed(c, px, py, 1.5, min_peak, p.max_sigma_px, &seed))
         candidates_.push_back(seed);
       if (again)
         continue;
@@ -377,7 +330,7 @@ std::vector<KeptSpot> FastMethod::refineCandidates(const cv::Mat& image, const F
       reject(debug, c.x, c.y, "refinement failed (no signal or at the border)");
       continue;
     }
-    const std::string why = spotRejection(image, c, p, score, &r);
+    const std::string why = spotRejection(planes_, c, p, scratch_.get(), &r);
     if (!why.empty())
     {
       reject(debug, r.x, r.y, why);

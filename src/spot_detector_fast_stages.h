@@ -1,18 +1,27 @@
 // The stages of SpotMethod::kFast (private to the core library), in the
 // order spot_detector_fast.cpp chains them:
-//  1. ThresholdPass     one pass over the frame: candidate pixels as runs,
-//                       4 x 4 block means of the score for the coarse pass;
+//  0. FramePlanes       the inputs layer: any encoding, the projector's
+//                       colour, the ambient frame (spot_detector_planes.h);
+//  1. ThresholdPass     one pass over the frame's score grid: candidate cells
+//                       as runs, 4 x 4 block means of the score for the
+//                       coarse pass;
 //  2. BlobLabeller      runs -> 8-connected blobs;
 //  3. candidates        blobs worth refining (addBlobCandidates), wide dim
 //                       dots from the block means (CoarseCandidates), and
 //                       further dots of a blob that holds several
 //                       (BlobSplitter, fed back while refining);
-//  4. refinement        Gaussian-weighted centroid in a window (refineSpot)
-//                       and the colour of the added light (measureColour),
-//                       spot_detector_refine.cpp;
-//  5. tests, de-duplication and frame checks, spot_detector_fast.cpp.
-// Stages 1-3 are in spot_detector_candidates.cpp. All coordinates are pixels
-// of the full frame (OpenCV convention, pixel centres at integers).
+//  4. refinement        the dot's added light, normalised by the albedo under
+//                       each pixel, in a window (refineSpot): an iteratively
+//                       Gaussian-weighted centroid, or a Gaussian fit without
+//                       the clipped pixels (spot_detector_refine.cpp,
+//                       spot_detector_fit.cpp); the colour of the added
+//                       light (measureColour, spot_detector_colour.cpp);
+//  5. tests and de-duplication, spot_detector_fast.cpp.
+// Stages 1-3 are in spot_detector_candidates.cpp and work in grid
+// coordinates (FramePlanes: a pixel, or a 2 x 2 Bayer cell); candidates and
+// everything after them are in pixels of the full frame (OpenCV convention,
+// pixel centres at integers). A tracking mode (search only windows around
+// last frame's dots) would replace stages 1-3 and feed stage 4 directly.
 #pragma once
 
 #include <algorithm>
@@ -23,61 +32,27 @@
 #include <opencv2/core.hpp>
 
 #include "spot_detector_method.h"
+#include "spot_detector_planes.h"
 
 namespace structured_light_stabilizer
 {
 namespace fast_detector
 {
 
-// Greenness of one pixel: g - max(k r, b), floored at 0, k = red_weight in
-// 1/256 units. Reddish rock (g/r about 0.55-0.65) scores 0 whatever its
-// albedo or the sun; the projector's 520 nm light raises g far more than r or
-// b; grey, white and bluish clutter scores 0 too.
-inline int greenness(const uint8_t* px, const PixelLayout& L, int k256)
-{
-  return std::max(0, int(px[L.g]) - std::max((k256 * int(px[L.r])) >> 8, int(px[L.b])));
-}
-
-// The per-pixel score that finds dots: greenness in colour frames, the
-// intensity in mono8 ones. The threshold pass computes the same score 16
-// pixels at a time (rowRuns in spot_detector_candidates.cpp): a new score
-// (another projector colour, a ratio to an ambient frame) changes both.
-struct PixelScore
-{
-  PixelLayout layout;
-  int k256;  // red_weight in 1/256 units
-  bool mono;
-
-  PixelScore(PixelFormat format, double red_weight);
-  int at(const uint8_t* px) const { return mono ? int(px[0]) : greenness(px, layout, k256); }
-  // Greenness at (x, y) of the frame; -1 outside it (colour frames only).
-  int greennessAt(const cv::Mat& image, int x, int y) const
-  {
-    return x < 0 || y < 0 || x >= image.cols || y >= image.rows
-               ? -1
-               : greenness(image.ptr<uint8_t>(y) + x * layout.step, layout, k256);
-  }
-};
-
-// A horizontal run of candidate pixels [x0, x1] in row y.
-struct Run
-{
-  int y, x0, x1;
-};
-
-// Stage 1. Candidate pixels (score >= threshold) as runs, in row order, and
-// optionally the 4 x 4 block means of the score, accumulated in the same pass
-// (16-bit column sums over 4 rows, then 4 columns summed). One pass over the
-// frame, 16 pixels at a time where SIMD is available, which keeps it near the
-// memory bandwidth limit.
+// Stage 1. Candidate cells (score >= the planes' threshold) as runs, in row
+// order, and optionally the 4 x 4 block means of the score, accumulated in
+// the same pass (16-bit column sums over 4 rows, then 4 columns summed). One
+// pass over the frame, 16 cells at a time where SIMD is available for the
+// format (spot_detector_rows.cpp), which keeps it near the memory bandwidth
+// limit.
 class ThresholdPass
 {
 public:
-  static constexpr int kBin = 4;  // block size of the coarse pass
+  static constexpr int kBin = 4;  // block size of the coarse pass (cells)
 
-  void run(const cv::Mat& image, PixelFormat format, int threshold, int k256, bool coarse);
+  void run(FramePlanes* planes, bool coarse);
   const std::vector<Run>& runs() const { return runs_; }
-  // Block means (CV_8UC1, rows / kBin x cols / kBin); valid after a run() with coarse.
+  // Block means (CV_8UC1, grid rows / kBin x cols / kBin); valid after a run() with coarse.
   const cv::Mat& coarse() const { return coarse_; }
 
 private:
@@ -86,6 +61,7 @@ private:
   std::vector<uint16_t> column_sums_;
 };
 
+// Grid coordinates (cells).
 struct Blob
 {
   int count = 0;
@@ -96,11 +72,11 @@ struct Blob
 
 // Stage 2. Runs -> 8-connected blobs (union-find over runs of adjacent rows),
 // numbered in the order of their first run, with the score moments of their
-// pixels.
+// cells.
 class BlobLabeller
 {
 public:
-  const std::vector<Blob>& label(const std::vector<Run>& runs, const cv::Mat& image, const PixelScore& score);
+  const std::vector<Blob>& label(const std::vector<Run>& runs, const FramePlanes& planes);
   const std::vector<Blob>& blobs() const { return blobs_; }
   // Blob of each run of the last label() call.
   const std::vector<int>& runBlob() const { return run_blob_; }
@@ -110,19 +86,19 @@ private:
   std::vector<Blob> blobs_;
 };
 
-// Where a dot may be, and how wide.
+// Where a dot may be, and how wide (pixels of the full frame).
 struct Candidate
 {
   double x, y, sigma0;
   int count;                     // pixels behind it (area of the reported spot)
   int x0, y0, x1, y1;            // bounds the refined centroid must stay near
-  int peak_x = -1, peak_y = -1;  // strongest pixel (full-resolution blobs)
+  int peak_x = -1, peak_y = -1;  // strongest pixel (full-resolution blobs; centre of the cell)
   int blob = -1;                 // index in the blobs (full-resolution candidates)
   bool seed = false;             // a further local maximum of a blob (see BlobSplitter)
 };
 
 // Stage 3a. The blobs worth refining (enough pixels, a strong enough peak).
-void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, bool mono,
+void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, const FramePlanes& planes,
                        std::vector<Candidate>* candidates);
 
 // Stage 3b. Wide dim dots (sigma 3-4 px on dark rock) whose every pixel stays
@@ -133,7 +109,8 @@ class CoarseCandidates
 {
 public:
   // Appends the coarse candidates; returns how many.
-  int add(const cv::Mat& coarse, int threshold, double max_sigma_px, std::vector<Candidate>* candidates);
+  int add(const cv::Mat& coarse, int threshold, double max_sigma_px, const FramePlanes& planes,
+          std::vector<Candidate>* candidates);
 
 private:
   cv::Mat mask_;
@@ -151,53 +128,99 @@ class BlobSplitter
 public:
   // Indexes the runs of each blob (counting sort by blob) and forgets the
   // discs of the last frame. The arguments must outlive the frame's use.
-  void reset(const cv::Mat& image, const PixelScore& score, const std::vector<Run>& runs,
-             const std::vector<int>& run_blob, const std::vector<Blob>& blobs);
-  // Whether (x, y) lies in a disc already explained in this blob.
+  void reset(const FramePlanes& planes, const std::vector<Run>& runs, const std::vector<int>& run_blob,
+             const std::vector<Blob>& blobs);
+  // Whether pixel (x, y) lies in a disc already explained in this blob.
   bool explained(int blob, double x, double y) const;
-  // Records the disc explained by a dot at (x, y) of sigma s in c's blob and
-  // searches the blob for its next seed; false when there is none.
+  // Records the disc explained by a dot at pixel (x, y) of sigma s (pixels)
+  // in c's blob and searches the blob for its next seed; false when there is
+  // none. min_peak in score units.
   bool nextSeed(const Candidate& c, double x, double y, double s, int min_peak, double max_sigma_px, Candidate* seed);
 
 private:
-  bool prominent(int x, int y, int g, int radius, int min_peak) const;
+  bool prominent(int gx, int gy, int g, int radius, int min_peak) const;
 
-  const cv::Mat* image_ = nullptr;
-  const PixelScore* score_ = nullptr;
+  const FramePlanes* planes_ = nullptr;
   const std::vector<Run>* runs_ = nullptr;
   const std::vector<Blob>* blobs_ = nullptr;
   std::vector<int> run_start_, run_list_;      // runs of blob k: run_list_[run_start_[k] .. run_start_[k + 1])
-  std::vector<std::vector<cv::Vec3d>> discs_;  // per blob: x, y, radius
+  std::vector<std::vector<cv::Vec3d>> discs_;  // per blob: x, y, radius (grid units)
 };
 
 // Result of the refinement of one candidate (stage 4).
 struct SpotFit
 {
   double x = 0, y = 0, sigma = 0, flux = 0;
-  double sigma_major = 0;                // along the footprint's long axis (sigma: the mean of both axes)
-  double red_ratio = 0, blue_ratio = 0;  // excess over background relative to green's
-  double red_slack = 0;                  // how far texture alone could move the red ratio
-  double background = 0;                 // local background level of the weight channel (DN)
-  bool on_pedestal = false;              // found by the small-window retry
-  bool clipped = false;                  // green core saturated: sigma inflated, flux short
+  double sigma_major = 0;  // along the footprint's long axis (sigma: the mean of both axes)
+  double amplitude = 0;    // fitted peak of the added light (DN at the dot's mean albedo)
+  // Colour of the added light: reference and third excess over background
+  // relative to the signal's ("red" and "blue" for a green projector).
+  double red_ratio = 0, blue_ratio = 0;
+  double red_slack = 0;      // how far texture alone could move the reference ratio
+  double background = 0;     // local background level of the signal (DN)
+  double noise = 0;          // robust spread of the window's border about its background plane (DN)
+  bool on_pedestal = false;  // found by the small-window retry
+  bool clipped = false;      // clipped pixels in the dot: located by the Gaussian fit without them
+  bool normalised = false;   // the added light was divided by the albedo under each pixel
   cv::Rect window;
 };
 
 // Amplitude of a Gaussian dot from its self-weighted sum: flux = A pi sigma^2.
 double gaussianAmplitude(const SpotFit& fit);
 
-// Stage 4a. Iteratively Gaussian-weighted centroid of the weight channel `ch`
-// (minus kappa times red_ch, when red_ch >= 0) around (x0, y0), starting
-// from sigma0; window half size fixed_radius, or 0 for 3 sigma. False when
-// the fit finds no signal or leaves its window. Fills x, y, sigma,
-// sigma_major, flux, background and window.
-bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double x0, double y0, double sigma0,
-                int fixed_radius, double max_sigma, SpotFit* out);
+// What the refinement needs besides the planes.
+struct RefineSettings
+{
+  int fixed_radius = 0;  // window half size; 0 = 3 sigma
+  double max_sigma = 6.0;
+  bool subtract_texture = true;  // colour frames: signal - kappa reference
+  bool normalise_albedo = true;
+  double albedo_floor_dn = 1.0;
+};
 
-// Stage 4b. Colour of the fitted spot's added light: fills red_ratio,
-// red_slack, blue_ratio (NaN when there is no green excess over the rock).
-void measureColour(const cv::Mat& img, const PixelLayout& L, int saturation, double led_red, double led_blue,
-                   SpotFit* fit);
+// The weight field of one window: the dot's added light over the rock,
+// divided by the albedo under each pixel where it is known, at the signal's
+// samples (0 elsewhere); rows `stride` floats apart, padded with zeros.
+struct WeightWindow
+{
+  int cx = -1, cy = -1, H = -1, stride = 0;
+  double background = 0, noise = 0;
+  double density = 1;  // fraction of the window's pixels where the signal is sampled (Bayer: 1/2 or 1/4)
+  bool normalised = false;
+  bool any_clipped = false;
+  alignas(16) float vals[PlaneWindow::kSize];
+  uint8_t usable[PlaneWindow::kSize];  // a sample, not clipped, not next to a clipped pixel (blooming)
+};
+
+// Scratch of the refinement (large: keep one per detector).
+struct RefineScratch
+{
+  PlaneWindow planes;
+  WeightWindow weights;
+};
+
+// Stage 4a. Iteratively Gaussian-weighted centroid of the weight field around
+// pixel (x0, y0), starting from sigma0; a Gaussian fit without the clipped
+// pixels when the dot has some. False when the fit finds no signal or leaves
+// its window. Fills every SpotFit field but the colour; scratch->planes holds
+// the final window's planes.
+bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, double y0, double sigma0,
+                int fixed_radius, RefineScratch* scratch, SpotFit* out);
+
+// The clipped plateau of the signal nearest to (x, y) in the window: its
+// centroid and its half width across the columns. False when the window has
+// no clipped sample (spot_detector_fit.cpp).
+bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* centre, double* half_width);
+
+// Fits A exp(-r^2 / 2 sigma^2) to the usable pixels of w by Gauss-Newton,
+// from fit's x, y, sigma; updates them, amplitude and flux. False (fit
+// untouched) when too few pixels are usable or it does not converge.
+bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit);
+
+// Stage 4b. Colour of the fitted spot's added light from the final window's
+// planes: fills red_ratio, red_slack, blue_ratio (NaN when there is no signal
+// excess over the rock).
+void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit);
 
 }  // namespace fast_detector
 }  // namespace structured_light_stabilizer

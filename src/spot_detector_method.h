@@ -22,11 +22,13 @@ class SpotDetectionMethod
 public:
   virtual ~SpotDetectionMethod() = default;
 
-  // image has passed SpotDetector's checks: not empty, 8-bit, as many
-  // channels as format has. params are sanitized. debug and timings (either
-  // may be null) arrive reset to their defaults; total_ms is SpotDetector's.
-  virtual SpotDetectionResult detect(const cv::Mat& image, PixelFormat format, const SpotDetectorParams& params,
-                                     SpotDetectorDebug* debug, SpotDetectorTimings* timings) = 0;
+  // image has passed SpotDetector's checks: not empty, the format's depth
+  // and channel count; ambient is empty or of the same size and type.
+  // params are sanitized. debug and timings (either may be null) arrive
+  // reset to their defaults; total_ms is SpotDetector's.
+  virtual SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                                     const SpotDetectorParams& params, SpotDetectorDebug* debug,
+                                     SpotDetectorTimings* timings) = 0;
 };
 
 std::unique_ptr<SpotDetectionMethod> makeBaselineMethod();  // spot_detector_baseline.cpp
@@ -34,31 +36,6 @@ std::unique_ptr<SpotDetectionMethod> makeFastMethod();      // spot_detector_fas
 
 // Whether the registry has a row for this method (SpotDetectorParams::sanitize).
 bool isRegisteredMethod(SpotMethod method);
-
-// Where the colour channels of one pixel are: byte offsets of r, g, b and the
-// pixel size in bytes (mono8: all three are the one byte).
-struct PixelLayout
-{
-  int r, g, b, step;
-};
-
-inline PixelLayout layoutOf(PixelFormat format)
-{
-  switch (format)
-  {
-    case PixelFormat::kBgr8:
-      return {2, 1, 0, 3};
-    case PixelFormat::kRgb8:
-      return {0, 1, 2, 3};
-    case PixelFormat::kBgra8:
-      return {2, 1, 0, 4};
-    case PixelFormat::kRgba8:
-      return {0, 1, 2, 4};
-    case PixelFormat::kMono8:
-      return {0, 0, 0, 1};
-  }
-  return {0, 0, 0, 1};
-}
 
 // Wall time of consecutive stages: each lap() returns the ms since the last
 // one (or since construction).

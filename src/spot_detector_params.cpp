@@ -40,15 +40,6 @@ void clampDouble(double* v, double lo, double hi, const char* name, Changes* cha
   }
 }
 
-// A factor bound that is either off (0) or at least 1 (below 1 it would
-// reject the frame's median itself).
-void clampFactor(double* v, const char* name, Changes* changes)
-{
-  clampDouble(v, 0.0, 1000.0, name, changes);
-  if (*v > 0 && *v < 1.0)
-    clampDouble(v, 1.0, 1000.0, name, changes);
-}
-
 template <typename T>
 void orderPair(T* lo, T* hi, const char* lo_name, const char* hi_name, Changes* changes)
 {
@@ -114,37 +105,23 @@ Changes ColourTestParams::sanitize()
   return changes;
 }
 
-Changes FrameCheckParams::sanitize()
-{
-  Changes changes;
-  clampDouble(&min_sigma_fraction, 0.0, 1.0, "min_sigma_fraction", &changes);
-  clampFactor(&max_sigma_factor, "max_sigma_factor", &changes);
-  clampDouble(&max_contrast_factor, 0.0, 1000.0, "max_contrast_factor", &changes);
-  clampDouble(&min_energy_fraction, 0.0, 1.0, "min_energy_fraction", &changes);
-  clampDouble(&size_band_low, 0.0, 1.0, "size_band_low", &changes);
-  clampFactor(&size_band_high, "size_band_high", &changes);
-  clampDouble(&energy_band_low, 0.0, 1.0, "energy_band_low", &changes);
-  clampFactor(&energy_band_high, "energy_band_high", &changes);
-  clampInt(&consistency_min_spots, 1, 100000, "consistency_min_spots", &changes);
-  return changes;
-}
-
 Changes FastParams::sanitize()
 {
   Changes changes;
   clampInt(&detect_threshold, 1, 255, "detect_threshold", &changes);
   clampDouble(&red_weight, 0.0, 1.0, "red_weight", &changes);
   clampInt(&min_peak, 1, 255, "min_peak", &changes);
+  clampDouble(&intensity_snr, 0.0, 1000.0, "intensity_snr", &changes);
   clampInt(&mono_threshold, 1, 255, "mono_threshold", &changes);
   clampInt(&min_pixels, 1, 10000, "min_pixels", &changes);
   clampInt(&coarse_threshold, 0, 255, "coarse_threshold", &changes);
   clampInt(&window_radius_px, 0, 24, "window_radius_px", &changes);
+  clampDouble(&albedo_floor_dn, 0.0, 255.0, "albedo_floor_dn", &changes);
   clampDouble(&min_sigma_px, 0.0, 20.0, "min_sigma_px", &changes);
   clampDouble(&max_sigma_px, 0.3, 20.0, "max_sigma_px", &changes);
   orderPair(&min_sigma_px, &max_sigma_px, "min_sigma_px", "max_sigma_px", &changes);
   append(colour_test.sanitize(), &changes);
   clampInt(&saturation_level, 1, 255, "saturation_level", &changes);
-  append(frame_checks.sanitize(), &changes);
   return changes;
 }
 
@@ -155,6 +132,12 @@ Changes SpotDetectorParams::sanitize()
   {
     changes.push_back("method " + std::to_string(static_cast<int>(method)) + " is not registered, using fast");
     method = SpotMethod::kFast;
+  }
+  if (std::string(projectorColorName(projector_color)) == "unknown")
+  {
+    changes.push_back("projector_color " + std::to_string(static_cast<int>(projector_color)) +
+                      " is not a colour, using green");
+    projector_color = ProjectorColor::kGreen;
   }
   append(baseline.sanitize(), &changes);
   clampInt(&projector_rows, 1, 1000, "projector_rows", &changes);
@@ -169,11 +152,6 @@ std::string BaselineParams::validate() const
 }
 
 std::string ColourTestParams::validate() const
-{
-  return firstChange(*this);
-}
-
-std::string FrameCheckParams::validate() const
 {
   return firstChange(*this);
 }

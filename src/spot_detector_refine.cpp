@@ -1,7 +1,19 @@
 // Stage 4 of the fast method: the measurement of one candidate in a window
-// of the frame (see spot_detector_fast_stages.h): an iteratively
-// Gaussian-weighted centroid over a background plane, and the colour of the
-// light the spot adds to the rock.
+// of the frame (see spot_detector_fast_stages.h): the dot's added light over
+// the rock, normalised by the albedo under each pixel, and an iteratively
+// Gaussian-weighted centroid of it (a Gaussian fit, spot_detector_fit.cpp,
+// when the dot has clipped pixels).
+//
+// Why the normalisation (docs/spot_detector.md#texture-and-clipping): a
+// pixel of a dot records the beam's irradiance at its surface point times
+// the albedo there, so on textured rock the light centroid is pulled towards
+// the brighter grains by sigma^2 times the albedo's log-gradient (0.4 px RMS
+// for 1-3 cm texture of +-25 % at 1.5 m). The albedo is seen in the ambient
+// light: A(p) = albedo(p) * E_sun, smooth E_sun. With an ambient frame A is
+// measured; on a colour frame it is the reference channel scaled by the
+// rock's signal/reference ratio, after the dot's own small share of the
+// reference is taken out. Dividing the added light by A / mean(A) leaves the
+// beam's footprint, whose centre is the hit point.
 #include <algorithm>
 #include <cmath>
 
@@ -17,35 +29,33 @@ namespace fast_detector
 
 namespace
 {
-constexpr int kMaxRadius = 24;  // largest window half size
-constexpr int kMaxRing = 8 * kMaxRadius;
-constexpr int kMaxStride = 52;  // 2 * kMaxRadius + 1 rounded up to 4 lanes
+constexpr int kMaxRadius = PlaneWindow::kMaxRadius;
+constexpr int kMaxRing = 16 * kMaxRadius;
+constexpr int kMaxStride = PlaneWindow::kStride;
+// Largest ratio of the albedo under a pixel to its surroundings (a printed
+// chessboard: 16).
+constexpr double kAlphaMax = 20.0;
 
-// Calls f(dx, dy) for every pixel of the one-pixel border ring of the
-// (2H+1)^2 window: top and bottom rows, then the left and right columns.
+// Calls f(dx, dy) for every pixel of the border ring of the (2H+1)^2
+// window, `thickness` pixels wide: top and bottom rows, then the left and
+// right columns.
 template <typename F>
-void forRing(int H, F f)
+void forRing(int H, int thickness, F f)
 {
-  for (int d = -H; d <= H; ++d)
+  for (int t = 0; t < thickness; ++t)
   {
-    f(d, -H);
-    f(d, H);
+    const int E = H - t;
+    for (int d = -H; d <= H; ++d)
+    {
+      f(d, -E);
+      f(d, E);
+    }
+    for (int d = -H + thickness; d <= H - thickness; ++d)
+    {
+      f(-E, d);
+      f(E, d);
+    }
   }
-  for (int d = -H + 1; d <= H - 1; ++d)
-  {
-    f(-H, d);
-    f(H, d);
-  }
-}
-
-// The rock's ratio of a channel to red, from sums over n ring pixels (least
-// squares through the origin); 0 when red is below ~3 DN: no sunlit texture
-// to follow (night).
-double ratioToRed(double sum_cr, double sum_rr, int n)
-{
-  if (sum_rr < 9.0 * n)
-    return 0.0;
-  return std::min(1.5, std::max(0.0, sum_cr / sum_rr));
 }
 
 // Background plane a + bx*dx + by*dy of a window, in pixels from its centre.
@@ -96,103 +106,186 @@ Plane fitPlane(const RingSample* samples, int n, const double* keep_limit, const
   return p;
 }
 
-// Background plane of channel ch minus kappa times channel ch2 (ch2 < 0: ch
-// alone) on the border ring of the (2H+1)^2 window centred on (cx, cy).
-// Robust: a least-squares fit, then a refit without the border pixels far
-// from it (a speck, a mineral edge or a neighbour's flank on the ring would
-// otherwise tilt the plane and drag the centroid).
-Plane borderPlane(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, int H, int ch2, double kappa)
+// Robust background plane of the ring samples: a least-squares fit, then a
+// refit without the samples far from it (a speck, a mineral edge or a
+// neighbour's flank on the ring would otherwise tilt the plane and drag the
+// centroid). *spread: 1.4826 x the median absolute residual.
+Plane robustPlane(const RingSample* samples, int n, double* spread)
 {
-  RingSample samples[kMaxRing];
-  int n = 0;
-  forRing(H,
-          [&](int dx, int dy)
-          {
-            const uint8_t* px = img.ptr<uint8_t>(cy + dy) + (cx + dx) * pixel_bytes;
-            samples[n++] = {dx, dy, double(px[ch]) - (ch2 >= 0 ? kappa * px[ch2] : 0.0)};
-          });
+  *spread = 0.0;
+  if (n <= 0)
+    return Plane();
   const Plane p = fitPlane(samples, n, nullptr, Plane());
   double res[kMaxRing];
   for (int i = 0; i < n; ++i)
     res[i] = std::abs(samples[i].v - p.at(samples[i].dx, samples[i].dy));
-  const double mad = 1.4826 * detail::medianInPlace(res, res + n);
-  const double limit = std::max(2.0, 3.0 * mad);
+  *spread = 1.4826 * detail::medianInPlace(res, res + n);
+  const double limit = std::max(2.0, 3.0 * *spread);
   return fitPlane(samples, n, &limit, p);
 }
 
-// Mean of channel ch on the window's border.
-double borderMean(const cv::Mat& img, int pixel_bytes, int ch, int cx, int cy, int H)
-{
-  double sum = 0;
-  const uint8_t* top = img.ptr<uint8_t>(cy - H) + (cx - H) * pixel_bytes + ch;
-  const uint8_t* bottom = img.ptr<uint8_t>(cy + H) + (cx - H) * pixel_bytes + ch;
-  for (int d = 0; d <= 2 * H; ++d)
-    sum += top[d * pixel_bytes] + bottom[d * pixel_bytes];
-  for (int dy = -H + 1; dy <= H - 1; ++dy)
-  {
-    const uint8_t* row = img.ptr<uint8_t>(cy + dy) + ch;
-    sum += row[(cx - H) * pixel_bytes] + row[(cx + H) * pixel_bytes];
-  }
-  return sum / (8.0 * H);
-}
+// ---------------------------------------------------------------------------
+// The weight field.
 
-// Green-over-red ratio of the rock on the window's border.
-double rockRatio(const cv::Mat& img, int pixel_bytes, int g_ch, int r_ch, int cx, int cy, int H)
+// The rock's signal/reference ratio on the window's border (least squares
+// through the origin over the signal's samples); 0 when the reference is
+// below ~3 DN: no sunlit texture to follow (night).
+double rockRatio(const PlaneWindow& w)
 {
-  double gr = 0, rr = 0;
+  double sr = 0, rr = 0;
   int n = 0;
-  forRing(H,
+  forRing(w.H, w.ring,
           [&](int dx, int dy)
           {
-            const uint8_t* px = img.ptr<uint8_t>(cy + dy) + (cx + dx) * pixel_bytes;
-            gr += double(px[g_ch]) * px[r_ch];
-            rr += double(px[r_ch]) * px[r_ch];
+            const int i = w.index(dx, dy);
+            if ((w.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) != PlaneWindow::kSample)
+              return;
+            sr += double(w.signal[i]) * w.reference[i];
+            rr += double(w.reference[i]) * w.reference[i];
             ++n;
           });
-  return ratioToRed(gr, rr, n);
+  if (n == 0 || rr < 9.0 * n)
+    return 0.0;
+  return std::min(4.0, std::max(0.0, sr / rr));
 }
 
-// ---------------------------------------------------------------------------
-// Gaussian-weighted centroid.
-
-// The refinement window: the weight channel minus its background plane, rows
-// padded with zeros to a multiple of 4 floats (SIMD lanes).
-struct Window
+// What the window shows of the rock and the dot, per pixel.
+struct Decomposition
 {
-  int cx = -1, cy = -1, H = -1, stride = 0;
-  double background = 0;  // mean of the weight channel on the border (DN)
-  alignas(16) float vals[(2 * kMaxRadius + 1) * kMaxStride];
+  double kappa = 0;  // signal/reference of the rock (colour frames without ambient)
+  double gain = 1;   // 1 / (1 - kappa led_reference): the dot's share of the reference put back
+  bool ambient_known = false;
 };
 
-// With red_ch >= 0 the weight channel is g - kappa r, kappa the rock's own
-// green/red ratio around the dot: the sunlit rock texture under the dot then
-// cancels pixel by pixel (it is in red as much as in green), and the dot,
-// which barely reaches red, stays. A plane fitted to the window's border can
-// only remove a gradient, not texture, which at full sun biases the centroid
-// by a tenth of a pixel.
-void loadWindow(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, int cx, int cy, int H, Window* win)
+// The signal minus what the rock alone would give (before the plane).
+inline double baseValue(const PlaneWindow& w, int i, const Decomposition& d)
 {
-  win->cx = cx;
-  win->cy = cy;
-  win->H = H;
-  const double kappa = red_ch >= 0 ? rockRatio(img, pixel_bytes, ch, red_ch, cx, cy, H) : 0.0;
-  const Plane bg = borderPlane(img, pixel_bytes, ch, cx, cy, H, red_ch, kappa);
-  win->background = borderMean(img, pixel_bytes, ch, cx, cy, H);
-  win->stride = (2 * H + 1 + 3) & ~3;
+  if (w.ambient)
+    return double(w.signal[i]) - w.ambient_signal[i];
+  return double(w.signal[i]) - d.kappa * w.reference[i];
+}
+
+// The ambient light in the signal channel at pixel i, given the added light P.
+inline double ambientValue(const PlaneWindow& w, int i, double added)
+{
+  return w.ambient ? double(w.ambient_signal[i]) : double(w.signal[i]) - added;
+}
+
+// Marks as unusable for the Gaussian fit the clipped pixels and their four
+// neighbours (blooming leaves the last, partly filled pixel next to a clipped
+// one, and OpenCV-style demosaicing spreads clipping by one pixel). Only a
+// window with a clipped pixel needs the neighbours looked at.
+void markUsable(const PlaneWindow& pw, WeightWindow* win)
+{
+  const int H = pw.H;
+  win->any_clipped = false;
   for (int dy = -H; dy <= H; ++dy)
-  {
-    const uint8_t* row = img.ptr<uint8_t>(cy + dy) + (cx - H) * pixel_bytes;
-    float* v = win->vals + (dy + H) * win->stride;
     for (int dx = -H; dx <= H; ++dx)
     {
-      const uint8_t* px = row + (dx + H) * pixel_bytes;
-      const double value = px[ch] - (kappa > 0.0 ? kappa * px[red_ch] : 0.0);
-      v[dx + H] = static_cast<float>(value - bg.at(dx, dy));
+      const uint8_t f = pw.flags[pw.index(dx, dy)];
+      win->usable[pw.index(dx, dy)] = static_cast<uint8_t>((f & PlaneWindow::kSample) != 0);
+      win->any_clipped = win->any_clipped || (f & PlaneWindow::kClipped);
+    }
+  if (!win->any_clipped)
+    return;
+  for (int dy = -H; dy <= H; ++dy)
+    for (int dx = -H; dx <= H; ++dx)
+    {
+      if (!(pw.flags[pw.index(dx, dy)] & PlaneWindow::kClipped))
+        continue;
+      win->usable[pw.index(dx, dy)] = 0;
+      if (dx > -H)
+        win->usable[pw.index(dx - 1, dy)] = 0;
+      if (dx < H)
+        win->usable[pw.index(dx + 1, dy)] = 0;
+      if (dy > -H)
+        win->usable[pw.index(dx, dy - 1)] = 0;
+      if (dy < H)
+        win->usable[pw.index(dx, dy + 1)] = 0;
+    }
+}
+
+// The weight field of a filled PlaneWindow: P = (base - plane) * gain, the
+// dot's added light (base = signal - the ambient frame's signal, or signal -
+// kappa reference); divided by alpha = (A + floor) / (mean A + floor), the
+// albedo relative to the border's, where the ambient A (the ambient frame's
+// signal, or signal - P) is known and bright enough (mean A >= 2 floor: by
+// night there is nothing to normalise by). One pass over the window.
+void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineSettings& rs, WeightWindow* win)
+{
+  const int H = pw.H;
+  win->cx = pw.cx;
+  win->cy = pw.cy;
+  win->H = H;
+  win->stride = pw.stride;
+  Decomposition d;
+  if (pw.colour && !pw.ambient && rs.subtract_texture)
+  {
+    d.kappa = rockRatio(pw);
+    d.gain = 1.0 / std::max(0.5, 1.0 - d.kappa * model.led_reference);
+  }
+  d.ambient_known = pw.ambient || (pw.colour && d.kappa > 0.0);
+  RingSample samples[kMaxRing];
+  int n = 0;
+  double signal_sum = 0;
+  forRing(H, pw.ring,
+          [&](int dx, int dy)
+          {
+            // Clipped pixels are not background (a bloom streak can reach the border).
+            const int i = pw.index(dx, dy);
+            if ((pw.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) != PlaneWindow::kSample)
+              return;
+            samples[n++] = {dx, dy, baseValue(pw, i, d)};
+            signal_sum += pw.signal[i];
+          });
+  const Plane plane = robustPlane(samples, n, &win->noise);
+  win->background = n ? signal_sum / n : 0.0;
+  double ambient_sum = 0;
+  for (int k = 0; k < n; ++k)
+    ambient_sum += ambientValue(pw, pw.index(samples[k].dx, samples[k].dy),
+                                (samples[k].v - plane.at(samples[k].dx, samples[k].dy)) * d.gain);
+  // The floor regularises the ratio where the ambient is dark: at least the
+  // noise of the border (which the ambient estimate shares).
+  const double mean_ambient = n ? ambient_sum / n : 0.0, floor = std::max(rs.albedo_floor_dn, win->noise);
+  win->normalised = rs.normalise_albedo && d.ambient_known && mean_ambient >= 2.0 * floor;
+  // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
+  const float* other = pw.ambient ? pw.ambient_signal : pw.reference;
+  const float c = pw.ambient ? 1.0f : static_cast<float>(d.kappa), gain = static_cast<float>(d.gain);
+  const float inv_mean = static_cast<float>(1.0 / (mean_ambient + floor)), fl = static_cast<float>(floor);
+  const float lo = static_cast<float>(1.0 / kAlphaMax), hi = static_cast<float>(kAlphaMax);
+  int samples_in = 0;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const int row = pw.index(-H, dy);
+    float* v = win->vals + row;
+    const float p0 = static_cast<float>(plane.a + plane.by * dy - plane.bx * H), pbx = static_cast<float>(plane.bx);
+    for (int k = 0; k <= 2 * H; ++k)
+    {
+      const int i = row + k;
+      if (!(pw.flags[i] & PlaneWindow::kSample))
+      {
+        v[k] = 0.0f;
+        continue;
+      }
+      ++samples_in;
+      const float added = (pw.signal[i] - c * other[i] - (p0 + pbx * k)) * gain;
+      float alpha = 1.0f;
+      if (win->normalised)
+      {
+        const float ambient = pw.ambient ? pw.ambient_signal[i] : pw.signal[i] - added;
+        alpha = std::min(hi, std::max(lo, (ambient + fl) * inv_mean));
+      }
+      v[k] = added / alpha;
     }
     for (int k = 2 * H + 1; k < win->stride; ++k)
       v[k] = 0.0f;
   }
+  win->density = samples_in / detail::square(2.0 * H + 1.0);
+  markUsable(pw, win);
 }
+
+// ---------------------------------------------------------------------------
+// Gaussian-weighted centroid.
 
 // Moments of the window weighted by a Gaussian of sigma sw centred on
 // (xc, yc), about that centre.
@@ -201,7 +294,7 @@ struct Moments
   double Sw = 0, Sx = 0, Sy = 0, Sxx = 0, Syy = 0, Sxy = 0;
 };
 
-Moments gaussianMoments(const Window& win, double xc, double yc, double sw)
+Moments gaussianMoments(const WeightWindow& win, double xc, double yc, double sw)
 {
   const int H = win.H, stride = win.stride, cx = win.cx, cy = win.cy;
   alignas(16) float wx0[kMaxStride], wx1[kMaxStride], wx2[kMaxStride];
@@ -291,11 +384,27 @@ double majorSigma(const Moments& m, double mx, double my, double sw, double s_ne
 // Half size of the window around (cx, cy): fixed, or 3 sigma of the dot;
 // kept symmetric about the dot by clipping it at the frame edge on both sides
 // rather than on one.
-int windowRadius(const cv::Mat& img, int cx, int cy, int fixed_radius, double sw, double max_sigma)
+int windowRadius(const FramePlanes& planes, int cx, int cy, int fixed_radius, double sw, double max_sigma)
 {
   const int H =
       fixed_radius > 0 ? fixed_radius : std::max(3, static_cast<int>(std::ceil(3.0 * std::min(sw, max_sigma))) + 1);
-  return std::min({H, kMaxRadius, cx, cy, img.cols - 1 - cx, img.rows - 1 - cy});
+  return std::min({H, kMaxRadius, cx, cy, planes.frameCols() - 1 - cx, planes.frameRows() - 1 - cy});
+}
+
+// Whether a clipped pixel lies within 2.5 sigma of (x, y).
+bool clippedNear(const WeightWindow& w, double x, double y, double sigma)
+{
+  if (!w.any_clipped)
+    return false;
+  const double r2 = detail::square(2.5 * sigma + 1.0);
+  for (int dy = -w.H; dy <= w.H; ++dy)
+    for (int dx = -w.H; dx <= w.H; ++dx)
+    {
+      const int i = (dy + w.H) * w.stride + dx + w.H;
+      if (!w.usable[i] && detail::square(w.cx + dx - x) + detail::square(w.cy + dy - y) <= r2 && (w.vals[i] != 0.0f))
+        return true;
+    }
+  return false;
 }
 }  // namespace
 
@@ -304,30 +413,111 @@ double gaussianAmplitude(const SpotFit& fit)
   return fit.flux / (detail::kPi * fit.sigma * fit.sigma);
 }
 
+namespace
+{
+// Loads the window centred on pixel (cx, cy) unless it is loaded already.
+void loadWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int cy, int H, RefineScratch* scratch)
+{
+  WeightWindow& win = scratch->weights;
+  if (cx == win.cx && cy == win.cy && H == win.H)
+    return;
+  planes.fillWindow(cx, cy, H, &scratch->planes);
+  buildWeights(scratch->planes, planes.model(), rs, &win);
+}
+
+// For the iterated centroid: a window that covers half size H around pixel
+// (cx, cy). The loaded one is kept while it does and is not much larger
+// (the centroid's steps are small after the first); else one is loaded with
+// a margin of 2 px, which spares most reloads.
+void coverWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int cy, int H, RefineScratch* scratch)
+{
+  const WeightWindow& win = scratch->weights;
+  const int off = std::max(std::abs(cx - win.cx), std::abs(cy - win.cy));
+  if (win.H >= 0 && H + off <= win.H && win.H <= H + 4)
+    return;
+  const int margin =
+      std::min({2, kMaxRadius - H, cx - H, cy - H, planes.frameCols() - 1 - cx - H, planes.frameRows() - 1 - cy - H});
+  loadWindow(planes, rs, cx, cy, H + std::max(0, margin), scratch);
+}
+
+// The fields of a fit that come from its window.
+void describeWindow(const WeightWindow& win, SpotFit* out)
+{
+  out->background = win.background;
+  out->noise = win.noise;
+  out->normalised = win.normalised;
+  out->window = cv::Rect(win.cx - win.H, win.cy - win.H, 2 * win.H + 1, 2 * win.H + 1);
+}
+
+// A dot with clipped pixels near the candidate: a clipped core carries no
+// shape (and an iterated centroid can drift along a bloom streak), so a
+// Gaussian fit to the flanks locates it, started from the plateau's centroid
+// with sigmas that the plateau's width allows (a Gaussian of peak A clipped
+// at L is clipped out to sigma sqrt(2 ln(A / L))), in a window wide enough
+// for the plateau and its flanks, recentred once on the first fit.
+bool refineClipped(const FramePlanes& planes, const RefineSettings& rs, double x0, double y0, double sigma0,
+                   int fixed_radius, RefineScratch* scratch, SpotFit* out)
+{
+  const WeightWindow& win = scratch->weights;
+  cv::Point2d centre(x0, y0);
+  double half_width = 0.0;
+  if (!clippedPlateau(scratch->planes, x0, y0, &centre, &half_width))
+    return false;
+  SpotFit fit;
+  fit.x = centre.x;
+  fit.y = centre.y;
+  fit.sigma = std::max(sigma0, std::min(rs.max_sigma, half_width / 1.5));
+  for (int pass = 0; pass < 2; ++pass)
+  {
+    const int cx = static_cast<int>(std::lround(fit.x)), cy = static_cast<int>(std::lround(fit.y));
+    const int reach = fixed_radius > 0 ? fixed_radius : static_cast<int>(std::ceil(half_width + 3.0 * fit.sigma)) + 1;
+    const int H = windowRadius(planes, cx, cy, reach, fit.sigma, rs.max_sigma);
+    if (H < 2)
+      return false;
+    coverWindow(planes, rs, cx, cy, H, scratch);
+    if (!fitGaussian(win, rs.max_sigma, &fit))
+      return false;
+    if (std::hypot(fit.x - cx, fit.y - cy) < 1.0)
+      break;
+  }
+  *out = fit;
+  describeWindow(win, out);
+  out->clipped = true;
+  return true;
+}
+}  // namespace
+
 // Iteratively Gaussian-weighted centroid with adaptive sigma (star-tracker
 // IWC / adaptive moments): weights w = (v - background) * G(x - c_w; s_w).
 // The weighted variance gives the dot's sigma s (deconvolve), and the
 // weighted mean lies a fraction s^2 / (s^2 + s_w^2) of the way from c_w to
 // the dot's centre, so one step scaled by the inverse fraction lands on it (a
-// few iterations for real, pixel-integrated, clipped or noisy dots). The
-// window is set by s, not by a threshold, so no pixel enters or leaves it
-// because of noise, and a clipped (saturated) core stays symmetric, hence
-// unbiased.
-bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double x0, double y0, double sigma0,
-                int fixed_radius, double max_sigma, SpotFit* out)
+// few iterations for real, pixel-integrated or noisy dots). The window is
+// set by s, not by a threshold, so no pixel enters or leaves it because of
+// noise. A dot with clipped pixels near its centre is located by a Gaussian
+// fit that leaves them out instead: a clipped plateau shaped by the albedo
+// or by blooming along the columns is not symmetric about the hit point.
+bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, double y0, double sigma0,
+                int fixed_radius, RefineScratch* scratch, SpotFit* out)
 {
+  const double max_sigma = rs.max_sigma;
   double xc = x0, yc = y0, sw = sigma0;
-  Window win;
+  WeightWindow& win = scratch->weights;
+  win.cx = win.cy = win.H = -1;
   double flux = 0, major = 0;
   bool converged = false;
   for (int it = 0; it < 12 && !converged; ++it)
   {
     const int cx = static_cast<int>(std::lround(xc)), cy = static_cast<int>(std::lround(yc));
-    const int H = windowRadius(img, cx, cy, fixed_radius, sw, max_sigma);
+    const int H = windowRadius(planes, cx, cy, fixed_radius, sw, max_sigma);
     if (H < 2)
       return false;
-    if (cx != win.cx || cy != win.cy || H != win.H)
-      loadWindow(img, pixel_bytes, ch, red_ch, cx, cy, H, &win);
+    if (fixed_radius > 0)
+      loadWindow(planes, rs, cx, cy, H, scratch);
+    else
+      coverWindow(planes, rs, cx, cy, H, scratch);
+    if (it == 0 && clippedNear(win, x0, y0, sigma0))
+      return refineClipped(planes, rs, x0, y0, sigma0, fixed_radius, scratch, out);
     const Moments m = gaussianMoments(win, xc, yc, sw);
     if (!(m.Sw > 1e-6))
       return false;
@@ -355,170 +545,15 @@ bool refineSpot(const cv::Mat& img, int pixel_bytes, int ch, int red_ch, double 
   out->y = yc;
   out->sigma = sw;
   out->sigma_major = major;
-  out->flux = flux;
-  out->background = win.background;
-  out->window = cv::Rect(win.cx - win.H, win.cy - win.H, 2 * win.H + 1, 2 * win.H + 1);
+  // A mosaic's signal is sampled at a fraction of the pixels: the sums scale with it.
+  out->flux = flux / std::max(1e-3, win.density);
+  out->amplitude = gaussianAmplitude(*out);
+  describeWindow(win, out);
+  out->clipped = false;
+  // Clipping found only where the centroid ended.
+  if (clippedNear(win, xc, yc, sw))
+    return refineClipped(planes, rs, xc, yc, sw, fixed_radius, scratch, out);
   return true;
-}
-
-// ---------------------------------------------------------------------------
-// Colour of the added light.
-
-namespace
-{
-// The rock around a spot, from the border ring of its window: least-squares
-// planes of r, g, b (on the full square ring 1, dx and dy are orthogonal, so
-// each plane is three sums; a plane of g - k r is the plane of g minus k
-// times that of r), the rock's g/r and b/r ratios, and the spread of red
-// about its plane (how much texture the red ratio carries). Plain, not
-// robust: the colour test only needs ratios, and this runs for every
-// candidate.
-struct RingColour
-{
-  Plane red, green, blue;
-  double kg = 0, kb = 0;  // the rock's green/red and blue/red
-  double red_spread = 0;  // RMS of red about its plane (DN)
-};
-
-// RMS of red about its plane over the n pixels of the border ring.
-double redSpread(const cv::Mat& img, const PixelLayout& L, int cx, int cy, int H, const Plane& red, int n)
-{
-  double sum = 0;
-  for (int d = -H; d <= H; ++d)
-  {
-    for (int e : {-H, H})
-    {
-      const double a = img.ptr<uint8_t>(cy + e)[(cx + d) * L.step + L.r] - red.at(d, e);
-      sum += a * a;
-      if (std::abs(d) < H)
-      {
-        const double b = img.ptr<uint8_t>(cy + d)[(cx + e) * L.step + L.r] - red.at(e, d);
-        sum += b * b;
-      }
-    }
-  }
-  return std::sqrt(sum / n);
-}
-
-RingColour ringColour(const cv::Mat& img, const PixelLayout& L, int cx, int cy, int H)
-{
-  double s[3] = {0, 0, 0}, sx[3] = {0, 0, 0}, sy[3] = {0, 0, 0}, sgr = 0, sbr = 0, srr = 0;
-  int n = 0;
-  forRing(H,
-          [&](int dx, int dy)
-          {
-            const uint8_t* px = img.ptr<uint8_t>(cy + dy) + (cx + dx) * L.step;
-            const double c[3] = {double(px[L.r]), double(px[L.g]), double(px[L.b])};
-            for (int k = 0; k < 3; ++k)
-            {
-              s[k] += c[k];
-              sx[k] += c[k] * dx;
-              sy[k] += c[k] * dy;
-            }
-            sgr += c[1] * c[0];
-            sbr += c[2] * c[0];
-            srr += c[0] * c[0];
-            ++n;
-          });
-  // Sum of dx^2 over the ring (the same for dy).
-  double sdd = 0;
-  for (int d = -H; d <= H; ++d)
-    sdd += 2.0 * d * d + (std::abs(d) < H ? 2.0 * H * H : 0.0);
-  Plane planes[3];
-  for (int k = 0; k < 3; ++k)
-  {
-    planes[k].a = s[k] / n;
-    planes[k].bx = sx[k] / sdd;
-    planes[k].by = sy[k] / sdd;
-  }
-  RingColour ring;
-  ring.red = planes[0];
-  ring.green = planes[1];
-  ring.blue = planes[2];
-  ring.kg = ratioToRed(sgr, srr, n);
-  ring.kb = ratioToRed(sbr, srr, n);
-  ring.red_spread = redSpread(img, L, cx, cy, H, ring.red, n);
-  return ring;
-}
-
-// plane - k * other, coefficient by coefficient.
-Plane minusScaled(Plane plane, double k, const Plane& other)
-{
-  plane.a -= k * other.a;
-  plane.bx -= k * other.bx;
-  plane.by -= k * other.by;
-  return plane;
-}
-
-// Gaussian-weighted excess of the spot's unclipped pixels over the rock:
-// red, green, green - kg red (texture-free) and blue - kb red (texture-free).
-struct Excess
-{
-  double red = 0, green = 0, texture_free_green = 0, texture_free_blue = 0, sum_w = 0;
-};
-
-Excess weightedExcess(const cv::Mat& img, const PixelLayout& L, int saturation, const SpotFit& fit,
-                      const RingColour& ring)
-{
-  const int H = (fit.window.width - 1) / 2;
-  const int cx = fit.window.x + H, cy = fit.window.y + H;
-  const Plane pd = minusScaled(ring.green, ring.kg, ring.red), pb = minusScaled(ring.blue, ring.kb, ring.red);
-  const double inv2s2 = 1.0 / (2.0 * fit.sigma * fit.sigma);
-  double gx[64], gy[64];
-  for (int d = -H; d <= H && d + H < 64; ++d)
-  {
-    const double ex = cx + d - fit.x, ey = cy + d - fit.y;
-    gx[d + H] = std::exp(-ex * ex * inv2s2);
-    gy[d + H] = std::exp(-ey * ey * inv2s2);
-  }
-  Excess e;
-  for (int dy = -H; dy <= H; ++dy)
-  {
-    const uint8_t* row = img.ptr<uint8_t>(cy + dy);
-    for (int dx = -H; dx <= H; ++dx)
-    {
-      const uint8_t* px = row + (cx + dx) * L.step;
-      if (px[L.r] >= saturation || px[L.g] >= saturation || px[L.b] >= saturation)
-        continue;
-      const double w = gx[dx + H] * gy[dy + H];
-      e.sum_w += w;
-      e.red += w * (px[L.r] - ring.red.at(dx, dy));
-      e.green += w * (px[L.g] - ring.green.at(dx, dy));
-      e.texture_free_green += w * (px[L.g] - ring.kg * px[L.r] - pd.at(dx, dy));
-      e.texture_free_blue += w * (px[L.b] - ring.kb * px[L.r] - pb.at(dx, dy));
-    }
-  }
-  return e;
-}
-}  // namespace
-
-// Red: excess over the local background plane relative to the green excess
-// (texture-sensitive; slack says how much). Blue: measured on texture-free
-// signals, green - kappa_g red and blue - kappa_b red (kappa = the rock's own
-// ratios on the border), so sunlit rock texture cancels and what remains is
-// the added light's blue/green ratio, (led_b - kappa_b led_r) / (1 - kappa_g
-// led_r) for a dot. Gaussian-weighted, unclipped pixels only.
-void measureColour(const cv::Mat& img, const PixelLayout& L, int saturation, double led_red, double led_blue,
-                   SpotFit* fit)
-{
-  const int H = (fit->window.width - 1) / 2;
-  const RingColour ring = ringColour(img, L, fit->window.x + H, fit->window.y + H, H);
-  const Excess e = weightedExcess(img, L, saturation, *fit, ring);
-  if (e.green > 1e-6 && e.texture_free_green > 1e-6)
-  {
-    fit->red_ratio = e.red / e.green;
-    // Rock texture is spatially correlated over the window, so its effect on
-    // the weighted sums scales with the sum of the weights, not its root.
-    fit->red_slack = ring.red_spread * e.sum_w / e.green;
-    // Mapped back to the LED's blue/green ratio for comparison.
-    const double expected = (led_blue - ring.kb * led_red) / std::max(0.1, 1.0 - ring.kg * led_red);
-    fit->blue_ratio = e.texture_free_blue / e.texture_free_green - expected + led_blue;
-  }
-  else
-  {
-    // No green excess over the rock: not light added by the projector.
-    fit->red_ratio = fit->blue_ratio = detail::kNaN;
-  }
 }
 
 }  // namespace fast_detector

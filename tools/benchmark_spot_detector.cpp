@@ -1,9 +1,15 @@
 // Benchmark of the SpotDetector: the study's baseline chain and the fast
 // detector on the same 1024 x 1024 bgr8 simulator frames (10 x 10 dots,
-// textured rock, clutter; several sun levels and dot sizes) in one run,
-// single core (pinned when the OS allows, cv::setNumThreads(1)). Prints the
-// median and 90th percentile ms per frame of each method, their ratio, and
-// the per-stage breakdown of both.
+// textured rock, clutter; several sun levels and dot sizes, the study's
+// brightness: about half the dots clipped) in one run, single core (pinned
+// when the OS allows, cv::setNumThreads(1)). Prints the median and 90th
+// percentile ms per frame of each method, their ratio, and the per-stage
+// breakdown of both; then the fast method's thread CPU time per input kind
+// on the same scenes: bgr8 with dimmer dots (few clipped), bayer_rggb8, mono8
+// (NIR), bgr8 with a projector-off frame.
+//
+// Before issue #14/#16 (integrate2 994be93, same frames, thread CPU): fast
+// 1.7-2.3 ms per frame; see docs/performance.md for the figures after.
 //
 // usage: benchmark_spot_detector [frames=40] [repeats=5]
 #include <algorithm>
@@ -51,35 +57,98 @@ double threadCpuMs()
 }
 }  // namespace
 
-int main(int argc, char** argv)
+// One input kind: frames of the benchmark's scenes rendered for it, and the
+// fast method's median thread CPU per frame.
+struct InputKind
 {
-  const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 40;
-  const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
+  const char* name;
+  const char* output;
+  ProjectorColor color;
+  double brightness;  // dot_to_sun_ratio factor (1: the study's)
+  bool ambient;
+  double sun;  // < 0: the benchmark's 0.5 and 1 alternately
+};
 
-  bool pinned = false;
+void benchmarkInputs(int detections)
+{
+  const InputKind kinds[] = {
+      {"bgr8, dots 0.3 x (few clipped)", "bgr8", ProjectorColor::kGreen, 0.3, false, -1},
+      {"bgr8 + projector-off frame", "bgr8", ProjectorColor::kGreen, 1.0, true, -1},
+      {"bayer_rggb8", "bayer_rggb8", ProjectorColor::kGreen, 1.0, false, -1},
+      {"mono8, NIR, by night", "mono8", ProjectorColor::kNir, 1.0, false, 0.0},
+      {"mono8, NIR, by day + projector-off frame", "mono8", ProjectorColor::kNir, 1.0, true, -1},
+      // Texture bumps of a dot's size and brightness are candidates in one
+      // mono frame by day: hundreds per frame on the simulator's rock.
+      {"mono8, NIR, by day", "mono8", ProjectorColor::kNir, 1.0, false, -1},
+  };
+  for (const InputKind& k : kinds)
+  {
+    std::vector<cv::Mat> images, ambients;
+    for (int i = 0; i < 4; ++i)
+    {
+      SimulatorParams cfg;
+      sensorOutputFromEncoding(k.output, &cfg.sensor.output);
+      cfg.projector.color = k.color;
+      cfg.projector.wavelength_nm = nominalWavelengthNm(k.color);
+      cfg.lighting.sun_level = k.sun >= 0 ? k.sun : (i % 2 ? 1.0 : 0.5);
+      cfg.lighting.dot_to_sun_ratio *= k.brightness;
+      cfg.clutter.green_specks = 20;
+      cfg.clutter.olive_minerals = 20;
+      cfg.rock.seed = 1000 + i;
+      const Simulator sim(cfg);
+      images.push_back(sim.render(0.1 * i).image);
+      FrameRequest off;
+      off.projector_on = false;
+      ambients.push_back(k.ambient ? sim.render(0.1 * i, off).image : cv::Mat());
+    }
+    PixelFormat format;
+    pixelFormatFromEncoding(k.output, &format);
+    SpotDetectorParams p;
+    p.projector_color = k.color;
+    SpotDetector det(p);
+    std::vector<double> cpu;
+    size_t spots = 0;
+    for (int r = 0; r < detections; ++r)
+    {
+      const size_t i = static_cast<size_t>(r) % images.size();
+      const double c0 = threadCpuMs();
+      spots += det.detect(images[i], ambients[i], format).spots.size();
+      cpu.push_back(threadCpuMs() - c0);
+    }
+    std::printf("fast, %-32s median %.3f ms thread CPU (p90 %.3f), %.1f spots/frame\n", k.name, median(cpu),
+                percentile(cpu, 0.9), static_cast<double>(spots) / detections);
+  }
+}
+
+// Pins the process to the first core it may run on; false when the OS refuses.
+bool pinToOneCore()
+{
 #ifdef __linux__
   cpu_set_t set;
   CPU_ZERO(&set);
-  if (sched_getaffinity(0, sizeof(set), &set) == 0)
+  if (sched_getaffinity(0, sizeof(set), &set) != 0)
+    return false;
+  for (int c = 0; c < CPU_SETSIZE; ++c)
   {
-    for (int c = 0; c < CPU_SETSIZE; ++c)
+    if (CPU_ISSET(c, &set))
     {
-      if (CPU_ISSET(c, &set))
-      {
-        cpu_set_t one;
-        CPU_ZERO(&one);
-        CPU_SET(c, &one);
-        pinned = sched_setaffinity(0, sizeof(one), &one) == 0;
-        break;
-      }
+      cpu_set_t one;
+      CPU_ZERO(&one);
+      CPU_SET(c, &one);
+      return sched_setaffinity(0, sizeof(one), &one) == 0;
     }
   }
 #endif
-  // Frames rendered before the pinning matters (the simulator uses threads).
+  return false;
+}
+
+// The benchmark's bgr8 frames: dot sigma 1.5-4 px, sun 0.5 and 1, clutter.
+std::vector<cv::Mat> benchmarkFrames(int count)
+{
   std::vector<cv::Mat> images;
   const double beams[] = {0.0014, 0.002, 0.0028, 0.0038};
   const double suns[] = {1.0, 0.5};
-  for (int i = 0; i < std::min(frames, 8); ++i)
+  for (int i = 0; i < count; ++i)
   {
     SimulatorParams cfg;
     cfg.projector.beam_sigma_rad = beams[i % 4];
@@ -92,11 +161,23 @@ int main(int argc, char** argv)
     cfg.motion.jitter_translation_m = 0.002;
     images.push_back(Simulator(cfg).render(0.1 * i).image);
   }
+  return images;
+}
+
+int main(int argc, char** argv)
+{
+  const int frames = argc > 1 ? std::max(1, std::atoi(argv[1])) : 40;
+  const int repeats = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
+
+  const bool pinned = pinToOneCore();
+  // Frames rendered before the pinning matters (the simulator uses threads).
+  const std::vector<cv::Mat> images = benchmarkFrames(std::min(frames, 8));
   cv::setNumThreads(1);
-  std::printf("frames: %d distinct simulator frames 1024x1024 bgr8 (dot sigma 1.5-4 px, sun 0.5 and 1, clutter), "
-              "%d detections per method, %s, cv::setNumThreads(1)\n",
-              static_cast<int>(images.size()), frames * repeats,
-              pinned ? "pinned to one core" : "NOT pinned (sched_setaffinity failed)");
+  std::printf(
+      "frames: %d distinct simulator frames 1024x1024 bgr8 (dot sigma 1.5-4 px, sun 0.5 and 1, clutter), "
+      "%d detections per method, %s, cv::setNumThreads(1)\n",
+      static_cast<int>(images.size()), frames * repeats,
+      pinned ? "pinned to one core" : "NOT pinned (sched_setaffinity failed)");
 
   SpotDetectorParams pb;
   pb.method = SpotMethod::kBaseline;
@@ -104,7 +185,8 @@ int main(int argc, char** argv)
   pf.method = SpotMethod::kFast;
   SpotDetector baseline(pb), fast(pf);
 
-  std::vector<double> cpu_b, cpu_f, tb, tf, blur, hsv, in_range, opening, labelling, centroids, sort, f_thr, f_lab, f_ref;
+  std::vector<double> cpu_b, cpu_f, tb, tf, blur, hsv, in_range, opening, labelling, centroids, sort, f_thr, f_lab,
+      f_ref;
   size_t spots_b = 0, spots_f = 0;
   // Warm-up (allocations, page faults).
   for (const cv::Mat& im : images)
@@ -142,15 +224,16 @@ int main(int argc, char** argv)
   const double n = static_cast<double>(tb.size());
   std::printf("baseline: median %.3f ms/frame wall (p90 %.3f, min %.3f), %.3f ms thread CPU, %.1f spots/frame\n",
               median(tb), percentile(tb, 0.9), percentile(tb, 0.0), median(cpu_b), spots_b / n);
-  std::printf("  stages (median ms): blur %.3f, HSV %.3f, inRange %.3f, opening %.3f, labelling %.3f, "
-              "centroids %.3f, row sort %.3f\n",
-              median(blur), median(hsv), median(in_range), median(opening), median(labelling), median(centroids),
-              median(sort));
+  std::printf(
+      "  stages (median ms): blur %.3f, HSV %.3f, inRange %.3f, opening %.3f, labelling %.3f, "
+      "centroids %.3f, row sort %.3f\n",
+      median(blur), median(hsv), median(in_range), median(opening), median(labelling), median(centroids), median(sort));
   std::printf("fast:     median %.3f ms/frame wall (p90 %.3f, min %.3f), %.3f ms thread CPU, %.1f spots/frame\n",
               median(tf), percentile(tf, 0.9), percentile(tf, 0.0), median(cpu_f), spots_f / n);
   std::printf("  stages (median ms): SIMD threshold pass %.3f, labelling + coarse pass %.3f, refine + tests %.3f\n",
               median(f_thr), median(f_lab), median(f_ref));
   std::printf("ratio baseline/fast: %.1fx (median wall), %.1fx (min wall), %.1fx (median thread CPU)\n",
               median(tb) / median(tf), percentile(tb, 0.0) / percentile(tf, 0.0), median(cpu_b) / median(cpu_f));
+  benchmarkInputs(frames * repeats);
   return 0;
 }

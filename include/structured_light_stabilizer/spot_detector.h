@@ -1,26 +1,37 @@
-// Detection of the projected green dots and their sub-pixel centroids
+// Detection of the projected dots and their sub-pixel centroids
 // (docs/spot_detector.md).
 //
-// Contract: detect() takes one 8-bit image (bgr8, rgb8, bgra8, rgba8 or mono8,
-// any row step, ROIs welcome) and returns the dots found in it as Spots in
-// pixel coordinates (OpenCV convention: pixel centres at integer coordinates,
-// x = column, y = row). Bad input (empty, wrong depth/channel count for the
-// stated format) is refused with a reason, never thrown. Two methods, chosen by
-// SpotDetectorParams::method (the registry is in spot_detector.cpp):
+// Contract: detect() takes one frame in any encoding a ROS camera driver
+// sends for this use (PixelFormat: bgr8/rgb8/bgra8/rgba8, mono8, mono16, the
+// four 8-bit Bayer patterns, yuv422 UYVY and YUYV; any row step, ROIs
+// welcome) and, optionally, an ambient frame of the same format and size
+// (projector off, aligned to this frame: strobed daylight operation, or a
+// projector-off capture of a calibration view). It returns the dots found as
+// Spots in pixel coordinates of the full frame (OpenCV convention: pixel
+// centres at integer coordinates, x = column, y = row). Bad input (empty,
+// wrong depth/channel count for the stated format, an ambient frame of
+// another size or type) is refused with a reason, never thrown. Two methods,
+// chosen by SpotDetectorParams::method (the registry is in
+// spot_detector.cpp):
 //  - kBaseline (spot_detector_baseline.cpp): the study's chain
 //    (docs/study.md §2.4), kept faithful as the yardstick: box blur -> HSV ->
 //    inRange -> N erosions then N dilations (3x3 rect) -> 4-connected regions
 //    -> minimum pixel count -> centroid weighted by S (formulas 2.31-2.32) ->
 //    row sort (the top `cols` centroids form a row, sorted by x; repeat),
-//    which numbers the beams.
-//  - kFast (default; spot_detector_fast.cpp): one SIMD pass thresholds the
-//    greenness g - max(k r, b) in the raw frame, runs are grouped into blobs
-//    (one candidate per dot when bright greenish rock bridges several), and
-//    each is refined in a fixed window on the background-subtracted green
-//    channel with an iteratively Gaussian-weighted centroid (the star-tracker
-//    way), so mask edge pixels flickering in and out no longer move the
-//    centroid. Beams are left unassigned (-1): the Triangulator assigns them
-//    by the epipolar constraint.
+//    which numbers the beams. Frames that are not bgr8-like are converted to
+//    bgr8 (or mono8) first; it ignores the ambient frame.
+//  - kFast (default; spot_detector_fast.cpp): reads every encoding through
+//    one inputs layer (spot_detector_planes.h: the signal plane of the
+//    projector's colour and a reference plane that carries the rock's albedo
+//    with little dot light), thresholds the projector-colour score in one
+//    pass over the raw data (a Bayer mosaic per 2 x 2 cell), groups runs into
+//    blobs and refines each in a window: the dot's added light, normalised by
+//    the albedo under each pixel (from the ambient frame, else from the
+//    reference plane in daylight), with an iteratively Gaussian-weighted
+//    centroid, or a Gaussian fit that leaves clipped pixels out. Every
+//    plausible dot is reported with a quality (SNR); beams are left
+//    unassigned (-1): the Triangulator assigns them, and rejects clutter, by
+//    the epipolar constraint.
 // Not thread-safe per instance (scratch buffers); use one detector per thread.
 #pragma once
 
@@ -31,11 +42,16 @@
 
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/projector_color.h"
 #include "structured_light_stabilizer/spot.h"
 
 namespace structured_light_stabilizer
 {
 
+// The encodings of sensor_msgs/image_encodings the detector reads. Bayer
+// patterns name the colours of the top-left 2 x 2 cell (rggb: R at (0, 0)).
+// yuv422 is UYVY (U0 Y0 V0 Y1), yuv422_yuy2 YUYV (Y0 U0 Y1 V0), both
+// BT.601 with video-range luma, as OpenCV and cv_bridge convert them.
 enum class PixelFormat
 {
   kBgr8,
@@ -43,12 +59,40 @@ enum class PixelFormat
   kBgra8,
   kRgba8,
   kMono8,
+  kMono16,
+  kBayerRggb8,
+  kBayerBggr8,
+  kBayerGbrg8,
+  kBayerGrbg8,
+  kUyvy,
+  kYuyv,
 };
 
-// Parses a sensor_msgs/image_encodings name ("bgr8", ...). Returns false for
-// anything this detector does not accept (16-bit, float, Bayer, YUV, ...).
+// Parses a sensor_msgs/image_encodings name ("bgr8", "bayer_rggb8", "mono16",
+// "16UC1", "yuv422", "yuv422_yuy2", ...). Returns false for anything this
+// detector does not accept (float, 16-bit colour, 32-bit, ...).
 bool pixelFormatFromEncoding(const std::string& encoding, PixelFormat* format);
+// The sensor_msgs name of a format ("bgr8", "yuv422", ...).
+const char* encodingName(PixelFormat format);
+// The names pixelFormatFromEncoding() accepts, comma-separated (for messages).
+const char* acceptedEncodings();
+// cv::Mat channels and element depth of a frame in this format (Bayer: 1,
+// CV_8U; mono16: 1, CV_16U; yuv422: 2, CV_8U).
 int channelCount(PixelFormat format);
+int matDepth(PixelFormat format);
+inline int matType(PixelFormat format)
+{
+  return CV_MAKETYPE(matDepth(format), channelCount(format));
+}
+bool isBayer(PixelFormat format);
+// Whether the format carries colour (Bayer, RGB and YUV do; mono does not).
+bool hasColour(PixelFormat format);
+
+// The projector's colour (~projector_color, projector_color.h): nir and
+// white are found by intensity (a monochrome camera, or an unfiltered one
+// that sees the projector in every channel); green, red and blue by the
+// colour of the light they add to the rock on a colour camera (on a mono
+// camera they too fall back to intensity).
 
 enum class SpotMethod
 {
@@ -96,19 +140,24 @@ struct BaselineParams
   std::vector<std::string> sanitize();
 };
 
-// The fast method's colour test. A dot adds the projector's light to the rock
+// The fast method's colour test: a dot adds the projector's light to the rock
 // under it, so the colour of that added light is the sensor's response to the
-// projector (mostly green, some blue and red through the Bayer filters;
-// calibrate led_*_ratio = excess / green excess from any frame). The blue
-// test runs on texture-free signals (green and blue minus the rock's own
-// multiple of red) and rejects olive minerals, grey, white and bluish clutter
-// when the added light's blue/green differs from the LED's by more than
-// max_chroma_error. Red is the texture reference, so the red tests carry a
-// slack for the rock texture around the spot: red/green above led_red_ratio +
-// max_red_excess (olive, yellow minerals: R = G) rejects; below led_red_ratio
-// - max_red_deficit (a green mineral replaces red rock, so red drops where
-// green rises) too, but texture at full sun trips that one, so it is off (0)
-// by default.
+// projector. Named for the green projector (signal = green, reference = red,
+// third = blue); a red projector tests green and blue against red, a blue one
+// red and green against blue, with the responses of
+// spot_detector_planes.cpp's colour table (a typical colour sensor at 650
+// and 450 nm); no test for nir/white or mono frames. led_*_ratio = the
+// sensor's red (blue) response to the projector relative to green
+// (calibrate: excess / green excess of a dot on any frame). The third-channel
+// test runs on texture-free signals (signal and third minus the rock's own
+// multiple of the reference) and rejects olive minerals, grey, white and
+// bluish clutter when the added light's third/signal ratio differs from the
+// projector's by more than max_chroma_error. The reference carries the rock
+// texture, so its tests carry a slack for the texture around the spot:
+// reference/signal above led_red_ratio + max_red_excess (olive, yellow
+// minerals: R = G) rejects; below led_red_ratio - max_red_deficit too, but
+// texture at full sun trips that one, so it is off (0) by default. With an
+// ambient frame the added light is measured directly (frame - ambient).
 struct ColourTestParams
 {
   double led_red_ratio = 0.08;
@@ -121,65 +170,46 @@ struct ColourTestParams
   std::vector<std::string> sanitize();
 };
 
-// The fast method's frame-level consistency (when at least
-// consistency_min_spots survive). The dots of one frame share the projector's
-// beam and power, so they share a size (sigma) and an energy relative to the
-// rock they light (flux over the local background level: the
-// projector/sun irradiance ratio, up to incidence and shading); a speck or a
-// mineral is a reflectance patch, whose size and energy follow its own area
-// and reflectance. Hard bounds, relative to the frame's medians: sigma below
-// min_sigma_fraction (unless the long axis keeps at least halfway from there
-// to the median: a dot foreshortened by a slope, while a speck is small both
-// ways) or above max_sigma_factor (specks, mineral patches), peak contrast
-// over the background above max_contrast_factor (sunlit green minerals),
-// energy below min_energy_fraction (a patch the projector does not light).
-// Joint bound: a spot whose sigma is outside [size_band_low, size_band_high]
-// AND whose energy is outside [energy_band_low, energy_band_high] x the
-// medians is clutter (a dot on a slope may be larger or dimmer than its
-// peers, rarely both; a speck is smaller and brighter or dimmer). 0 disables
-// each bound.
-struct FrameCheckParams
-{
-  double min_sigma_fraction = 0.9;
-  double max_sigma_factor = 1.6;
-  double max_contrast_factor = 4.0;
-  double min_energy_fraction = 0.15;
-  double size_band_low = 0.92;
-  double size_band_high = 1.15;
-  double energy_band_low = 0.6;
-  double energy_band_high = 1.6;
-  int consistency_min_spots = 8;
-
-  std::string validate() const;
-  std::vector<std::string> sanitize();
-};
-
 // SpotMethod::kFast.
 struct FastParams
 {
-  // Threshold pass and candidates. Greenness g - max(red_weight * r, b):
-  // reddish rock (g/r 0.55-0.65) scores 0 with red_weight 0.75 while the dot
-  // keeps ~94 % of its peak.
+  // Threshold pass and candidates. Colour score (green projector):
+  // greenness g - max(red_weight * r, b): reddish rock (g/r 0.55-0.65)
+  // scores 0 with red_weight 0.75 while the dot keeps ~94 % of its peak. Red
+  // and blue projectors use the colour table's weights.
   double red_weight = 0.75;
-  int detect_threshold = 8;  // DN of greenness for a candidate pixel
-  int min_peak = 14;         // DN; a blob's strongest greenness (mono8: intensity) must reach this
-  int mono_threshold = 128;  // DN of intensity for a candidate pixel in mono8 frames
-  int min_pixels = 2;        // candidate pixels per blob
-  // Coarse pass: mean greenness over 4 x 4 blocks at least this (DN) makes a
-  // candidate too (wide dim dots); 0 = off. Not used for mono8.
+  int detect_threshold = 8;  // DN of the colour score for a candidate pixel
+  int min_peak = 14;         // DN; a blob's strongest score must reach this
+  // Intensity path (mono frames, nir/white projectors): a candidate pixel
+  // stands above the local background (opening of 16 x 16 block means) by
+  // intensity_snr x the local noise (from pixel differences) and by at least
+  // mono_threshold DN. With an ambient frame: frame - ambient, same test.
+  double intensity_snr = 6.0;
+  int mono_threshold = 6;
+  int min_pixels = 2;  // candidate pixels per blob
+  // Coarse pass: mean colour score over 4 x 4 cells at least this (DN) makes a
+  // candidate too (wide dim dots); 0 = off. Not used on the intensity path.
   int coarse_threshold = 3;
 
   // Refinement.
   int window_radius_px = 0;  // half size of the refinement window; 0 = from the blob's size
-  // Centroid weight g - kappa r, kappa = the rock's green/red ratio around the
-  // dot: removes the sunlit rock texture under the dot (false: g alone).
+  // Centroid weight signal - kappa reference, kappa = the rock's signal/
+  // reference ratio around the dot: removes the sunlit rock texture under
+  // the dot (false: signal alone). Colour frames without an ambient frame.
   bool subtract_rock_texture = true;
+  // Divide the dot's added light by the albedo under each pixel (relative to
+  // its surroundings), known from the ambient frame or, on colour frames,
+  // from the reference plane: the light centroid then stays on the beam's
+  // hit point on textured rock. The ratio is regularised by a floor, the
+  // larger of albedo_floor_dn (DN) and the noise of the window's border, and
+  // used where the local ambient reaches twice the floor (not by night).
+  bool normalise_albedo = true;
+  double albedo_floor_dn = 1.0;
   double min_sigma_px = 1.1;  // accepted range of the fitted Gaussian sigma (specks are sharper than dots)
   double max_sigma_px = 6.0;
 
   ColourTestParams colour_test;
-  int saturation_level = 250;  // DN; pixels at or above are clipped (excluded from the colour test)
-  FrameCheckParams frame_checks;
+  int saturation_level = 250;  // DN (8-bit; x 257 for mono16); pixels at or above are clipped
 
   std::string validate() const;
   std::vector<std::string> sanitize();
@@ -188,6 +218,7 @@ struct FastParams
 struct SpotDetectorParams
 {
   SpotMethod method = SpotMethod::kFast;
+  ProjectorColor projector_color = ProjectorColor::kGreen;
   // The study's row sort: both methods return their spots in row-major
   // order; the baseline also numbers the beams by it.
   int projector_rows = 10;
@@ -202,8 +233,9 @@ struct SpotDetectorParams
 
 // Per-stage wall times of the last detect() call (ms). Baseline stages:
 // blur, hsv, in_range, opening, labelling, centroids, sort; fast stages:
-// threshold (the SIMD pass), labelling (runs -> blobs -> candidates), refine
-// (refinement, tests, de-duplication, frame checks).
+// threshold (the pass over the frame, and the intensity path's background
+// map), labelling (runs -> blobs -> candidates), refine (refinement, tests,
+// de-duplication).
 struct SpotDetectorTimings
 {
   double blur_ms = 0, hsv_ms = 0, in_range_ms = 0, opening_ms = 0, labelling_ms = 0, centroids_ms = 0, sort_ms = 0;
@@ -217,9 +249,10 @@ struct SpotDetectorDebug
   cv::Mat mask;                   // baseline: final binary mask (after the opening)
   std::vector<cv::Rect> windows;  // fast: refinement window of each kept spot
   std::vector<double> sigmas_px;  // fast: fitted sigma of each kept spot
-  std::vector<cv::Vec2d> chroma;  // fast: (red, blue) excess / green excess of each kept spot
+  std::vector<cv::Vec2d> chroma;  // fast: (reference, third) excess / signal excess of each kept spot
   int candidates = 0;             // blobs/regions considered before rejection
   int coarse_candidates = 0;      // fast: extra candidates from the 4 x 4 binned pass
+  int fitted = 0;                 // fast: spots located by the Gaussian fit without their clipped pixels
   // Fast: candidates dropped, where and why (drawn in the debug image).
   struct Rejection
   {
@@ -229,11 +262,25 @@ struct SpotDetectorDebug
   std::vector<Rejection> rejected;
 };
 
+// How well the fast method measured one spot (the Triangulator may weigh or
+// rank by it; the baseline leaves it at its defaults).
+struct SpotQuality
+{
+  // Fitted peak of the dot's added light over the noise of its surroundings
+  // (robust spread of the window's border about its background plane, which
+  // also counts texture the reference plane did not explain).
+  float snr = 0.0f;
+  float sigma_px = 0.0f;           // fitted Gaussian sigma (mean of both axes)
+  bool clipped = false;            // clipped pixels left out by a Gaussian fit
+  bool albedo_normalised = false;  // the added light was divided by the albedo under each pixel
+};
+
 struct SpotDetectionResult
 {
   bool ok = false;
   std::string error;  // why the frame was refused (ok == false)
   Spots spots;
+  std::vector<SpotQuality> quality;  // parallel to spots (fast method; empty for the baseline)
 };
 
 class SpotDetectionMethod;  // one detection method (spot_detector_method.h)
@@ -252,6 +299,14 @@ public:
 
   SpotDetectionResult detect(const cv::Mat& image, PixelFormat format, SpotDetectorDebug* debug = nullptr,
                              SpotDetectorTimings* timings = nullptr);
+  // With an ambient frame: the same scene with the projector off, in the
+  // same format and size, aligned to `image` (a strobed camera's off frame,
+  // motion-compensated to this frame's time, or a projector-off capture of
+  // a static view). Its DN must be the frame's (it is subtracted): a
+  // predicted albedo image must be scaled to the frame's ambient light.
+  // Empty = none (as the overload above).
+  SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                             SpotDetectorDebug* debug = nullptr, SpotDetectorTimings* timings = nullptr);
 
 private:
   SpotDetectorParams params_;
@@ -273,7 +328,10 @@ void sortIntoRows(Spots* spots, int cols, int rows, bool assign_beams);
 cv::Mat drawSpotDebugImage(const cv::Mat& image, PixelFormat format, const Spots& spots,
                            const SpotDetectorDebug& debug);
 
-// Converts any accepted format to a bgr8 image (shares data when already bgr8).
+// Converts any accepted format to a bgr8 image (shares data when already
+// bgr8): Bayer demosaiced (bilinear), mono16 scaled by 1/257, yuv422 as
+// cv::cvtColor does. For display and the baseline; the fast method reads the
+// raw data.
 cv::Mat toBgr(const cv::Mat& image, PixelFormat format);
 
 }  // namespace structured_light_stabilizer

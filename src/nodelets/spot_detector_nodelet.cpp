@@ -1,6 +1,12 @@
 // SpotDetector nodelet: camera/image_raw -> spots (CentroidArray) and, only
-// while someone listens, spots/debug_image. All the detection is in the core
-// (spot_detector.h); this file subscribes, converts, calls and publishes.
+// while someone listens, spots/debug_image. With ~strobe it also takes the
+// projector-off frames of camera/image_ambient (a message_filters cache) and
+// hands the nearest one by stamp to the core with each frame. All the
+// detection is in the core (spot_detector.h); this file subscribes,
+// converts, calls and publishes.
+#include <algorithm>
+#include <atomic>
+#include <cmath>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -9,6 +15,8 @@
 #include <cv_bridge/cv_bridge.h>
 #include <dynamic_reconfigure/server.h>
 #include <image_transport/image_transport.h>
+#include <image_transport/subscriber_filter.h>
+#include <message_filters/cache.h>
 #include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/Image.h>
@@ -36,6 +44,7 @@ SpotDetectorParams paramsFromConfig(const Config& config)
 {
   SpotDetectorParams p;
   spotMethodFromName(config.method, &p.method);
+  projectorColorFromName(config.projector_color, &p.projector_color);
   BaselineParams& b = p.baseline;  // the study's chain
   b.blur_kernel = config.blur_kernel;
   b.h_min = config.h_min;
@@ -53,11 +62,14 @@ SpotDetectorParams paramsFromConfig(const Config& config)
   f.red_weight = config.red_weight;
   f.detect_threshold = config.detect_threshold;
   f.min_peak = config.min_peak;
+  f.intensity_snr = config.intensity_snr;
   f.mono_threshold = config.mono_threshold;
   f.min_pixels = config.min_pixels;
   f.coarse_threshold = config.coarse_threshold;
   f.window_radius_px = config.window_radius_px;
   f.subtract_rock_texture = config.subtract_rock_texture;
+  f.normalise_albedo = config.normalise_albedo;
+  f.albedo_floor_dn = config.albedo_floor_dn;
   f.min_sigma_px = config.min_sigma_px;
   f.max_sigma_px = config.max_sigma_px;
   f.colour_test.led_red_ratio = config.led_red_ratio;
@@ -66,22 +78,13 @@ SpotDetectorParams paramsFromConfig(const Config& config)
   f.colour_test.max_red_deficit = config.max_red_deficit;
   f.colour_test.max_chroma_error = config.max_chroma_error;
   f.saturation_level = config.saturation_level;
-  FrameCheckParams& fc = f.frame_checks;  // the fast detector's frame-level tests
-  fc.min_sigma_fraction = config.min_sigma_fraction;
-  fc.max_sigma_factor = config.max_sigma_factor;
-  fc.max_contrast_factor = config.max_contrast_factor;
-  fc.min_energy_fraction = config.min_energy_fraction;
-  fc.size_band_low = config.size_band_low;
-  fc.size_band_high = config.size_band_high;
-  fc.energy_band_low = config.energy_band_low;
-  fc.energy_band_high = config.energy_band_high;
-  fc.consistency_min_spots = config.consistency_min_spots;
   return p;
 }
 
 void configFromParams(const SpotDetectorParams& p, Config* config)
 {
   config->method = spotMethodName(p.method);
+  config->projector_color = projectorColorName(p.projector_color);
   const BaselineParams& b = p.baseline;
   config->blur_kernel = b.blur_kernel;
   config->h_min = b.h_min;
@@ -99,11 +102,14 @@ void configFromParams(const SpotDetectorParams& p, Config* config)
   config->red_weight = f.red_weight;
   config->detect_threshold = f.detect_threshold;
   config->min_peak = f.min_peak;
+  config->intensity_snr = f.intensity_snr;
   config->mono_threshold = f.mono_threshold;
   config->min_pixels = f.min_pixels;
   config->coarse_threshold = f.coarse_threshold;
   config->window_radius_px = f.window_radius_px;
   config->subtract_rock_texture = f.subtract_rock_texture;
+  config->normalise_albedo = f.normalise_albedo;
+  config->albedo_floor_dn = f.albedo_floor_dn;
   config->min_sigma_px = f.min_sigma_px;
   config->max_sigma_px = f.max_sigma_px;
   config->led_red_ratio = f.colour_test.led_red_ratio;
@@ -112,34 +118,47 @@ void configFromParams(const SpotDetectorParams& p, Config* config)
   config->max_red_deficit = f.colour_test.max_red_deficit;
   config->max_chroma_error = f.colour_test.max_chroma_error;
   config->saturation_level = f.saturation_level;
-  const FrameCheckParams& fc = f.frame_checks;
-  config->min_sigma_fraction = fc.min_sigma_fraction;
-  config->max_sigma_factor = fc.max_sigma_factor;
-  config->max_contrast_factor = fc.max_contrast_factor;
-  config->min_energy_fraction = fc.min_energy_fraction;
-  config->size_band_low = fc.size_band_low;
-  config->size_band_high = fc.size_band_high;
-  config->energy_band_low = fc.energy_band_low;
-  config->energy_band_high = fc.energy_band_high;
-  config->consistency_min_spots = fc.consistency_min_spots;
 }
 
 // Why an image message cannot be read as `format` (empty when it can):
 // style weak spot 2, refuse with a clear message instead of an OpenCV abort.
 std::string inconsistency(const sensor_msgs::Image& msg, PixelFormat format)
 {
-  const size_t row_bytes = static_cast<size_t>(msg.width) * channelCount(format);
+  const size_t bytes = static_cast<size_t>(channelCount(format)) * (matDepth(format) == CV_16U ? 2 : 1);
+  const size_t row_bytes = static_cast<size_t>(msg.width) * bytes;
   const std::string what = std::to_string(msg.width) + "x" + std::to_string(msg.height) + " " + msg.encoding;
   if (msg.width == 0 || msg.height == 0)
-    return "inconsistent image (" + what + "): empty; frame dropped";
+    return "inconsistent image (" + what + "): empty";
   if (msg.step < row_bytes)
-    return "inconsistent image (" + what + "): step " + std::to_string(msg.step) + " < width * channels " +
-           std::to_string(row_bytes) + "; frame dropped";
+    return "inconsistent image (" + what + "): step " + std::to_string(msg.step) +
+           " < width * channels * bytes per sample " + std::to_string(row_bytes);
   const size_t needed = static_cast<size_t>(msg.step) * (msg.height - 1) + row_bytes;
   if (msg.data.size() < needed)
     return "inconsistent image (" + what + ", step " + std::to_string(msg.step) + "): truncated, " +
-           std::to_string(msg.data.size()) + " data bytes of the " + std::to_string(needed) + " needed; frame dropped";
+           std::to_string(msg.data.size()) + " data bytes of the " + std::to_string(needed) + " needed";
+  if (matDepth(format) == CV_16U && msg.step % 2 != 0)
+    return "inconsistent image (" + what + "): odd step " + std::to_string(msg.step) + " for 16-bit samples";
   return "";
+}
+
+// A cv::Mat over the message's buffer (zero copy, its step honoured); 16-bit
+// big-endian data is byte-swapped into *swapped first.
+cv::Mat imageView(const sensor_msgs::Image& msg, PixelFormat format, cv::Mat* swapped)
+{
+  const cv::Mat view(static_cast<int>(msg.height), static_cast<int>(msg.width), matType(format),
+                     const_cast<uint8_t*>(msg.data.data()), msg.step);
+  const uint16_t one = 1;
+  const bool host_big_endian = *reinterpret_cast<const uint8_t*>(&one) == 0;
+  if (matDepth(format) != CV_16U || bool(msg.is_bigendian) == host_big_endian)
+    return view;
+  view.copyTo(*swapped);
+  for (int y = 0; y < swapped->rows; ++y)
+  {
+    uint16_t* row = swapped->ptr<uint16_t>(y);
+    for (int x = 0; x < swapped->cols * swapped->channels(); ++x)
+      row[x] = static_cast<uint16_t>((row[x] >> 8) | (row[x] << 8));
+  }
+  return *swapped;
 }
 
 }  // namespace
@@ -164,6 +183,13 @@ private:
                    projector_cols_);
       projector_rows_ = projector_cols_ = 10;
     }
+    pnh.param("strobe", strobe_, false);
+    pnh.param("ambient_max_gap_s", ambient_max_gap_s_, 0.1);
+    if (!(ambient_max_gap_s_ > 0.0))
+    {
+      NODELET_WARN("SpotDetector: ~ambient_max_gap_s must be > 0 (got %g); using 0.1", ambient_max_gap_s_);
+      ambient_max_gap_s_ = 0.1;
+    }
     it_.reset(new image_transport::ImageTransport(nh));
 
     setUpDiagnostics("structured_light_stabilizer/SpotDetector");
@@ -176,18 +202,35 @@ private:
 
     pub_spots_ = advertise<CentroidArray>(nh, "spots", 10);
     pub_debug_ = advertiseImage(*it_, "spots/debug_image", 1);
-    startSubscriptions(
-        "camera/image_raw is subscribed on demand (~lazy = true): only while spots or "
-        "spots/debug_image has a subscriber");
+    if (strobe_)
+      NODELET_INFO(
+          "SpotDetector: strobe mode: each frame of camera/image_raw is paired with the nearest "
+          "projector-off frame of camera/image_ambient within %.3f s",
+          ambient_max_gap_s_);
+    startSubscriptions(std::string("camera/image_raw") + (strobe_ ? " and camera/image_ambient are" : " is") +
+                       " subscribed on demand (~lazy = true): only while spots or spots/debug_image has a subscriber");
   }
 
   void subscribe() override
   {
     const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
     sub_image_ = it_->subscribe("camera/image_raw", 1, &SpotDetectorNodelet::imageCb, this, hints);
+    if (strobe_)
+    {
+      sub_ambient_.subscribe(*it_, "camera/image_ambient", 4, hints);
+      ambient_cache_.reset(new message_filters::Cache<sensor_msgs::Image>(sub_ambient_, 4));
+    }
   }
 
-  void unsubscribe() override { sub_image_.shutdown(); }
+  void unsubscribe() override
+  {
+    sub_image_.shutdown();
+    if (strobe_)
+    {
+      sub_ambient_.unsubscribe();
+      ambient_cache_.reset();
+    }
+  }
 
   void configCb(Config& config, uint32_t /*level*/)
   {
@@ -199,6 +242,13 @@ private:
       NODELET_WARN("SpotDetector: unknown method '%s' (fast | baseline); keeping %s", config.method.c_str(),
                    spotMethodName(params_.method));
       config.method = spotMethodName(params_.method);
+    }
+    ProjectorColor color;
+    if (!projectorColorFromName(config.projector_color, &color))
+    {
+      NODELET_WARN("SpotDetector: unknown projector_color '%s' (green | red | blue | nir | white); keeping %s",
+                   config.projector_color.c_str(), projectorColorName(params_.projector_color));
+      config.projector_color = projectorColorName(params_.projector_color);
     }
     SpotDetectorParams p = paramsFromConfig(config);
     p.projector_rows = projector_rows_;
@@ -214,6 +264,47 @@ private:
   void imageCb(const sensor_msgs::ImageConstPtr& msg)
   {
     guarded([&] { process(msg); });
+  }
+
+  // The cached projector-off frame nearest to `stamp` (null when none is
+  // within ~ambient_max_gap_s).
+  sensor_msgs::ImageConstPtr nearestAmbient(const ros::Time& stamp)
+  {
+    std::lock_guard<std::mutex> lock(connect_mutex_);
+    if (!ambient_cache_)
+      return nullptr;
+    sensor_msgs::ImageConstPtr best;
+    for (const sensor_msgs::ImageConstPtr& m :
+         {ambient_cache_->getElemBeforeTime(stamp), ambient_cache_->getElemAfterTime(stamp)})
+      if (m && (!best || std::abs((m->header.stamp - stamp).toSec()) < std::abs((best->header.stamp - stamp).toSec())))
+        best = m;
+    if (best && std::abs((best->header.stamp - stamp).toSec()) > ambient_max_gap_s_)
+      return nullptr;
+    return best;
+  }
+
+  // The ambient image for this frame in strobe mode; empty (with a throttled
+  // warning) when there is none fit to use: detection goes on without it.
+  cv::Mat ambientFor(const sensor_msgs::Image& frame, PixelFormat format, cv::Mat* swapped)
+  {
+    const sensor_msgs::ImageConstPtr amb = nearestAmbient(frame.header.stamp);
+    std::string why;
+    if (!amb)
+      why = "no camera/image_ambient frame within " + std::to_string(ambient_max_gap_s_) + " s of the frame";
+    else if (amb->encoding != frame.encoding || amb->width != frame.width || amb->height != frame.height)
+      why = "camera/image_ambient is " + std::to_string(amb->width) + "x" + std::to_string(amb->height) + " " +
+            amb->encoding + ", the frame " + std::to_string(frame.width) + "x" + std::to_string(frame.height) + " " +
+            frame.encoding;
+    else
+      why = inconsistency(*amb, format);
+    if (!why.empty())
+    {
+      ++frames_without_ambient_;
+      NODELET_WARN_THROTTLE(5.0, "SpotDetector: strobe mode: %s; detecting without the ambient frame", why.c_str());
+      return cv::Mat();
+    }
+    ambient_msg_ = amb;  // keeps the buffer alive while the view is used
+    return imageView(*amb, format, swapped);
   }
 
   void process(const sensor_msgs::ImageConstPtr& msg)
@@ -233,37 +324,31 @@ private:
     PixelFormat format;
     if (!pixelFormatFromEncoding(msg->encoding, &format))
     {
-      dropFrame("unsupported image encoding '" + msg->encoding +
-                "' (accepted: bgr8, rgb8, bgra8, rgba8, mono8); frame dropped");
+      dropFrame("unsupported image encoding '" + msg->encoding + "' (accepted: " + acceptedEncodings() +
+                "); frame dropped");
       return;
     }
-    if (format == PixelFormat::kMono8 && !mono_warned_)
-    {
-      mono_warned_ = true;
-      NODELET_WARN(
-          "SpotDetector: mono8 input: no colour, so dots are found by intensity only (green clutter and "
-          "bright rock are not rejected); use a colour camera for the real thing");
-    }
+    warnOnceAboutFormat(format);
     const std::string bad = inconsistency(*msg, format);
     if (!bad.empty())
     {
-      dropFrame(bad);
+      dropFrame(bad + "; frame dropped");
       return;
     }
-    // Zero copy: a header over the message's buffer, honouring its step.
-    const cv::Mat image(static_cast<int>(msg->height), static_cast<int>(msg->width),
-                        CV_MAKETYPE(CV_8U, channelCount(format)), const_cast<uint8_t*>(msg->data.data()), msg->step);
-
+    const cv::Mat image = imageView(*msg, format, &swapped_);
+    const cv::Mat ambient = strobe_ ? ambientFor(*msg, format, &ambient_swapped_) : cv::Mat();
     const bool want_debug = pub_debug_.getNumSubscribers() > 0;
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
-    const SpotDetectionResult result = detector_.detect(image, format, want_debug ? &debug : nullptr, &timings);
+    const SpotDetectionResult result =
+        detector_.detect(image, ambient, format, want_debug ? &debug : nullptr, &timings);
+    ambient_msg_.reset();
     if (!result.ok)
     {
       dropFrame("frame dropped: " + result.error);
       return;
     }
-    publishSpots(*msg, result.spots, timings.total_ms);
+    publishSpots(*msg, result.spots, timings.total_ms, !ambient.empty());
     if (want_debug)
     {
       cv_bridge::CvImage dbg(msg->header, sensor_msgs::image_encodings::BGR8,
@@ -272,7 +357,19 @@ private:
     }
   }
 
-  void publishSpots(const sensor_msgs::Image& image, const Spots& spots, double processing_ms)
+  void warnOnceAboutFormat(PixelFormat format)
+  {
+    if (hasColour(format) || mono_warned_)
+      return;
+    mono_warned_ = true;
+    NODELET_WARN(
+        "SpotDetector: %s input: no colour, so dots are found by intensity over the local background (clutter "
+        "of a dot's size and brightness is left to the Triangulator's geometry; in daylight the rock texture "
+        "under a dot is only removed with ~strobe's ambient frames)",
+        encodingName(format));
+  }
+
+  void publishSpots(const sensor_msgs::Image& image, const Spots& spots, double processing_ms, bool with_ambient)
   {
     CentroidArrayPtr out(new CentroidArray);
     out->header = image.header;
@@ -285,15 +382,17 @@ private:
     last_ms_ = processing_ms;
     mean_ms_ = frames_ == 0 ? processing_ms : 0.95 * mean_ms_ + 0.05 * processing_ms;
     last_spots_ = static_cast<int>(spots.size());
+    frames_with_ambient_ += with_ambient ? 1 : 0;
     ++frames_;
   }
 
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   {
-    std::string method;
+    std::string method, color;
     {
       boost::recursive_mutex::scoped_lock lock(config_mutex_);
       method = spotMethodName(params_.method);
+      color = projectorColorName(params_.projector_color);
     }
     const std::string last_drop = lastDropReason();
     std::lock_guard<std::mutex> lock(stats_mutex_);
@@ -302,10 +401,19 @@ private:
       stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "no frame processed yet (input is subscribed on demand)");
     else if (last_spots_ == 0)
       stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no dot found in the last frame");
+    else if (strobe_ && frames_without_ambient_ > 0 && frames_with_ambient_ == 0)
+      stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "strobe mode, but no usable camera/image_ambient frame");
     else
       stat.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "%d dots found (%d beams)", last_spots_, expected);
     stat.add("method", method);
+    stat.add("projector colour", color);
+    stat.add("strobe", strobe_);
     stat.add("frames processed", frames_);
+    if (strobe_)
+    {
+      stat.add("frames with an ambient frame", frames_with_ambient_);
+      stat.add("frames without one", frames_without_ambient_.load());
+    }
     stat.add("frames dropped (bad input)", framesDropped());
     stat.add("dots in last frame", last_spots_);
     stat.add("processing time last frame (ms)", last_ms_);
@@ -316,6 +424,8 @@ private:
 
   // Parameters fixed at start-up.
   int projector_rows_ = 10, projector_cols_ = 10;
+  bool strobe_ = false;
+  double ambient_max_gap_s_ = 0.1;
 
   // dynamic_reconfigure: the server holds config_mutex_ while calling
   // configCb(); the frame callback copies params_ under it.
@@ -325,19 +435,25 @@ private:
   bool enabled_ = true;
   bool params_changed_ = true;
 
-  // Only the frame callback touches the detector (one image queue).
+  // Only the frame callback touches the detector and these buffers (one image queue).
   SpotDetector detector_;
   bool mono_warned_ = false;
+  cv::Mat swapped_, ambient_swapped_;
+  sensor_msgs::ImageConstPtr ambient_msg_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::Subscriber sub_image_;
+  // Strobe mode: the projector-off frames, cached by stamp (under connect_mutex_).
+  image_transport::SubscriberFilter sub_ambient_;
+  std::unique_ptr<message_filters::Cache<sensor_msgs::Image>> ambient_cache_;
   ros::Publisher pub_spots_;
   image_transport::Publisher pub_debug_;
 
   // Statistics for diagnostics.
   std::mutex stats_mutex_;
   double last_ms_ = 0.0, mean_ms_ = 0.0;
-  int last_spots_ = 0, frames_ = 0;
+  int last_spots_ = 0, frames_ = 0, frames_with_ambient_ = 0;
+  std::atomic<int> frames_without_ambient_{0};
 };
 
 }  // namespace structured_light_stabilizer

@@ -7,6 +7,7 @@
 
 #include "brightness.h"
 #include "optics.h"
+#include "spectral.h"
 #include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
@@ -19,10 +20,6 @@ namespace
 
 using detail::kNaN;
 using detail::kPi;
-
-// Relative response of the B, G, R pixels of a Bayer sensor to 520 nm light:
-// mostly green, with the usual cross-talk into blue and a little into red.
-constexpr double kDotResponseBgr[3] = {0.22, 1.0, 0.08};
 
 // Where a beam meets the rock, seen from the camera.
 struct DotHit
@@ -95,6 +92,34 @@ DotAlbedo dotAlbedo(const FrameGeometry& g, const DotHit& hit, const Eigen::Vect
   return da;
 }
 
+// What the per-pixel incidence needs (splat.h, DotAlbedo::Incidence), in
+// the rock frame and grid units; b: the beam's direction (rock frame). The
+// tangent plane is the one of the footprint (the smooth normal at the hit).
+void setIncidence(const RockSurface& rock, const FrameGeometry& g, const DotHit& hit, const Eigen::Vector3d& b,
+                  double cos_i, double sigma_beam, DotAlbedo* da)
+{
+  DotAlbedo::Incidence& inc = da->inc;
+  const Eigen::Vector3d view = (hit.X_rock - g.o).normalized();
+  const Eigen::Vector3d n = rock.normal(hit.X_rock.x(), hit.X_rock.y());  // (gx, gy, -1) / |.|
+  const double gx = -n.x() / n.z(), gy = -n.y() / n.z();
+  const Eigen::Vector3d w = view - view.dot(b) * b;  // the view ray across the beam
+  for (int k = 0; k < 3; ++k)
+  {
+    inc.beam[k] = static_cast<float>(b[k]);
+    inc.view[k] = static_cast<float>(view[k]);
+  }
+  inc.inv_cos_hit = static_cast<float>(1.0 / cos_i);
+  inc.z = static_cast<float>(hit.X_rock.z() * rock.inv_cell);
+  inc.gx = static_cast<float>(gx);
+  inc.gy = static_cast<float>(gy);
+  inc.omega[0] = static_cast<float>(w.x() + w.z() * gx);
+  inc.omega[1] = static_cast<float>(w.y() + w.z() * gy);
+  inc.ww = static_cast<float>(w.squaredNorm());
+  const double sigma_grid = sigma_beam * rock.inv_cell;
+  inc.inv_sigma2 = static_cast<float>(1.0 / (sigma_grid * sigma_grid));
+  da->incidence = true;
+}
+
 }  // namespace
 
 void renderDots(const SimulatorParams& params, const ProjectorCalibration& projector, const RockSurface& rock,
@@ -110,6 +135,7 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
   frame->peak_dn.assign(nb, 0.0);
   const double sigma_diff_px = diffractionSigmaPx(sc, params.projector.wavelength_nm);
   const double dot_gain = dotGain(params);
+  const CameraSpectrum spectrum = cameraSpectrum(params.projector.color, sc.output);
   for (int b = 0; b < nb; ++b)
   {
     const BeamRay& beam = projector.beams[b];
@@ -132,18 +158,19 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
     // Energy of the dot in the image per unit reflectance: peak irradiance
     // (ratio * sun * cos_i * (d_ref/d)^2 * (sigma_ref/sigma)^2) times the
     // footprint area 2 pi sqrt(det(sigma^2 d^2 G)); the beam's sigma and
-    // distance cancel. The reflectance comes per pixel (DotAlbedo).
+    // distance cancel. The reflectance and the incidence's change across
+    // the footprint come per pixel (DotAlbedo).
     const double energy =
         dot_gain * cos_i * 2.0 * kPi * std::sqrt(std::max(0.0, G.determinant())) * vignetting(sc, hit.X);
     const double amplitude = energy / (2.0 * kPi * std::sqrt(S.determinant()));
     DotAlbedo da = dotAlbedo(g, hit, n, J, A, S);
-    for (int c = 0; c < 3; ++c)
-      da.mix[c][1] = static_cast<float>(kDotResponseBgr[c]);
+    if (!rock.board && !rock.planar)
+      setIncidence(rock, g, hit, g.R * beam.direction, cos_i, sigma_beam, &da);
+    std::copy(&spectrum.dot_mix[0][0], &spectrum.dot_mix[0][0] + 12, &da.mix[0][0]);
     da.g_lookup = std::min(1e-3, 0.02 / std::max(amplitude, 1e-9));
+    da.prepareGrid(rock);
     da.factors(rock, 0.0, 0.0, da.f0);
-    float rho[4];
-    rock.reflectanceUnderDot(da.x0, da.y0, 0.0, 0.0, rho);
-    frame->peak_dn[b] = amplitude * rho[1];
+    frame->peak_dn[b] = amplitude * da.f0[spectrum.primary];
     frame->blur_sigma_px[b] = std::sqrt(0.5 * S.trace());
     Splat sp;
     sp.cx = hit.pixel.x;
@@ -151,7 +178,14 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
     for (int c = 0; c < 3; ++c)
       sp.value[c] = static_cast<float>(amplitude);
     sp.albedo = static_cast<int>(albedo->size());
-    if (amplitude > 0.0 && setSplatShape(&sp, S, 50.0, cam.height))  // exp(-25): below any DN
+    // The splat ends where the dot falls below 0.005 DN, but not before
+    // exp(-12.5) of its peak (what the second moments of a faint dot see) nor
+    // after exp(-25).
+    const double brightest =
+        amplitude * std::max({da.mix[0][0], da.mix[0][1], da.mix[0][2], da.mix[0][3], da.mix[1][0], da.mix[1][1],
+                              da.mix[1][2], da.mix[1][3], da.mix[2][0], da.mix[2][1], da.mix[2][2], da.mix[2][3]});
+    const double q_max = std::min(50.0, std::max(25.0, 2.0 * std::log(brightest / 0.005)));
+    if (amplitude > 0.0 && setSplatShape(&sp, S, q_max, cam.height))
     {
       splats->push_back(sp);
       albedo->push_back(da);

@@ -1,6 +1,7 @@
 #include "rock_surface.h"
 
 #include "noise.h"
+#include "target_board.h"
 
 namespace structured_light_stabilizer
 {
@@ -45,6 +46,18 @@ RockSurface::RockSurface(const RockParams& rc, const LightingParams& lighting)
       hs[4 * k + c] = sunlit[3 * k + c];
     hs[4 * k + 3] = h[k];
   }
+}
+
+void RockSurface::reflectanceUnderDot(double x, double y, double blur_x, double blur_y, float out[4]) const
+{
+  if (board)
+  {
+    const float rho = static_cast<float>(board->reflectance(x, y, blur_x, blur_y));
+    out[0] = out[1] = out[2] = out[3] = rho;  // a grey print, also in the NIR
+    return;
+  }
+  lookup3(refl, x, y, out);
+  out[3] = std::min(1.0f, nir_to_red * out[2]);
 }
 
 // Relief: smooth 10-40 cm features (what a 5 cm dot spacing samples) plus a
@@ -111,6 +124,7 @@ void RockSurface::computeSlopeBounds()
   // test never clips a true hit.
   hmin -= 1e-6;
   hmax += 1e-6;
+  planar = lx == 0.0 && ly == 0.0;
   lip_x = lx / cell * 1.001 + 1e-9;
   lip_y = ly / cell * 1.001 + 1e-9;
 }

@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -19,6 +20,8 @@ namespace structured_light_stabilizer
 {
 namespace sim
 {
+
+class ChessboardPattern;
 
 struct RockSurface
 {
@@ -38,6 +41,7 @@ struct RockSurface
   std::vector<float> hs;
   double hmin = 0.0, hmax = 0.0;
   double lip_x = 0.0, lip_y = 0.0;  // Lipschitz bounds of the bilinear surface
+  bool planar = false;              // all heights equal: one normal everywhere
   // Per block of kBlock x kBlock cells: lowest vertex and slope bounds, for
   // the ray caster's empty-space skipping.
   static constexpr int kBlock = 8;
@@ -50,6 +54,9 @@ struct RockSurface
   Eigen::Vector3d sun_dir = Eigen::Vector3d(0.0, 0.0, -1.0);  // rock frame, towards the sun (unit)
   double sky = 0.0;
   float nir_to_red = 1.25f;  // RockParams::nir_to_red_ratio
+  // A printed chessboard instead of the rock (target_board.h): the surface is
+  // then a flat slab of the board's size and its reflectance is the print's.
+  std::shared_ptr<const ChessboardPattern> board;
 
   int vertex(int i, int j) const { return j * (nx + 1) + i; }
 
@@ -124,13 +131,7 @@ struct RockSurface
   // the dot, simulator.cpp). The rock's albedo grid is smooth on that scale
   // (< 1 mm against >= 2 mm cells), so the blur only matters for a printed
   // target's sharp edges.
-  void reflectanceUnderDot(double x, double y, double blur_x, double blur_y, float out[4]) const
-  {
-    (void)blur_x;
-    (void)blur_y;
-    lookup3(refl, x, y, out);
-    out[3] = std::min(1.0f, nir_to_red * out[2]);
-  }
+  void reflectanceUnderDot(double x, double y, double blur_x, double blur_y, float out[4]) const;
 
   // First intersection of o + s d (rock frame, s >= 0) with the rock. Returns
   // false on a miss; *wall is set when the ray enters through a side wall of

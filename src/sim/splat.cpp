@@ -53,11 +53,11 @@ void applySplatRow(const Splat& sp, int v, int width, float* row, const DotAlbed
   {
     for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
     {
-      float f[3];
+      float f[3] = {albedo->f0[0], albedo->f0[1], albedo->f0[2]};
       if (g >= albedo->g_lookup)
         albedo->factors(*surface, u - sp.cx, dy, f);
       for (int ch = 0; ch < 3; ++ch)
-        px[ch] += static_cast<float>(sp.value[ch] * (g >= albedo->g_lookup ? f[ch] : albedo->f0[ch]) * g);
+        px[ch] += static_cast<float>(sp.value[ch] * f[ch] * g);
     }
     return;
   }

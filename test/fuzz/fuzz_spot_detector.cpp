@@ -1,14 +1,16 @@
 // libFuzzer target: the spot detector core on arbitrary image bytes.
 //
-// Input layout (little endian): [0] pixel format (mod 5), [1..2] width - 1
-// (mod 160), [3..4] height - 1 (mod 160), [5] row padding in bytes (mod 16),
-// [6] flags: bit 0 method (fast/baseline), bit 1 debug output, bits 2-7 pick
-// a parameter variant; [7..10] parameter bytes. The rest is the pixel data,
-// repeated to fill the image (an image built from few bytes is mostly flat,
-// many bytes give noise and dots). Both methods run on every image, the one
-// picked by bit 0 with the variant's parameters (run through sanitize() as
-// the nodelet does). The detector must return ok with finite centroids inside
-// the image, or refuse with a message; never crash, hang or throw.
+// Input layout (little endian): [0] pixel format (mod 12, every encoding),
+// [1..2] width - 1 (mod 160), [3..4] height - 1 (mod 160), [5] row padding
+// in bytes (mod 16), [6] flags: bit 0 method (fast/baseline), bit 1 debug
+// output, bits 2-3 pick a parameter variant, bits 4-6 the projector colour
+// (mod 5), bit 7 an ambient frame (the same bytes read backwards); [7..10]
+// parameter bytes. The rest is the pixel data, repeated to fill the image (an
+// image built from few bytes is mostly flat, many bytes give noise and dots).
+// Both methods run on every image, the one picked by bit 0 with the
+// variant's parameters (run through sanitize() as the nodelet does). The
+// detector must return ok with finite centroids inside the image, or refuse
+// with a message; never crash, hang or throw.
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -73,19 +75,15 @@ SpotDetectorParams variant(uint8_t flags, const uint8_t* p)
       f.min_sigma_px = (p[1] % 40) * 0.1;
       f.max_sigma_px = 0.3 + (p[2] % 40) * 0.5;
       f.subtract_rock_texture = p[3] & 1;
-      f.frame_checks.consistency_min_spots = 1 + p[2] % 4;
+      f.normalise_albedo = p[2] & 1;
+      f.albedo_floor_dn = (p[0] % 8) * 0.5;
       break;
     }
-    default:  // frame-level tests off / everything lenient
+    default:  // everything lenient
     {
       FastParams& f = params.fast;
-      FrameCheckParams& fc = f.frame_checks;
-      fc.min_sigma_fraction = 0.0;
-      fc.max_sigma_factor = 0.0;
-      fc.max_contrast_factor = 0.0;
-      fc.min_energy_fraction = 0.0;
-      fc.size_band_low = fc.size_band_high = 0.0;
-      fc.energy_band_low = fc.energy_band_high = 0.0;
+      f.intensity_snr = (p[3] % 10) * 0.5;
+      f.mono_threshold = 1 + p[3] % 4;
       f.colour_test.max_chroma_error = (p[0] % 100) * 0.1;
       f.red_weight = (p[1] % 11) * 0.1;
       f.saturation_level = 1 + p[2] % 255;
@@ -95,6 +93,7 @@ SpotDetectorParams variant(uint8_t flags, const uint8_t* p)
       break;
     }
   }
+  params.projector_color = static_cast<ProjectorColor>((flags >> 4) % 5);
   params.projector_rows = 1 + p[3] % 10;
   params.projector_cols = 1 + p[0] % 10;
   params.sanitize();
@@ -107,23 +106,25 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
   constexpr size_t kHeader = 11;
   if (size < kHeader)
     return 0;
-  const PixelFormat formats[] = {PixelFormat::kBgr8, PixelFormat::kRgb8, PixelFormat::kBgra8, PixelFormat::kRgba8,
-                                 PixelFormat::kMono8};
-  const PixelFormat format = formats[data[0] % 5];
+  const PixelFormat format = static_cast<PixelFormat>(data[0] % 12);
   const int width = 1 + (data[1] | data[2] << 8) % 160;
   const int height = 1 + (data[3] | data[4] << 8) % 160;
-  const int channels = channelCount(format);
-  const size_t step = static_cast<size_t>(width) * channels + data[5] % 16;
+  const size_t bytes = static_cast<size_t>(channelCount(format)) * (matDepth(format) == CV_16U ? 2 : 1);
+  const size_t step = (static_cast<size_t>(width) * bytes + data[5] % 16 + 1) & ~size_t(1);  // 16-bit rows stay aligned
   const uint8_t flags = data[6];
   const uint8_t* params = data + 7;
   const uint8_t* pixels = data + kHeader;
   const size_t n = size - kHeader;
 
   // A buffer of step * height bytes honouring the step, as a message's data.
-  std::vector<uint8_t> buffer(step * height);
+  std::vector<uint8_t> buffer(step * height), backwards(step * height);
   for (size_t i = 0; i < buffer.size(); ++i)
+  {
     buffer[i] = n > 0 ? pixels[i % n] : 0;
-  const cv::Mat image(height, width, CV_MAKETYPE(CV_8U, channels), buffer.data(), step);
+    backwards[i] = n > 0 ? pixels[n - 1 - i % n] : 0;
+  }
+  const cv::Mat image(height, width, matType(format), buffer.data(), step);
+  const cv::Mat ambient = (flags & 128) ? cv::Mat(height, width, matType(format), backwards.data(), step) : cv::Mat();
 
   const bool want_debug = flags & 2;
   const SpotDetectorParams picked = variant(flags, params);
@@ -135,7 +136,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
     SpotDetector detector(p);
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
-    const SpotDetectionResult r = detector.detect(image, format, want_debug ? &debug : nullptr, &timings);
+    const SpotDetectionResult r = detector.detect(image, ambient, format, want_debug ? &debug : nullptr, &timings);
     check(r, image);
     if (want_debug && r.ok)
       (void)drawSpotDebugImage(image, format, r.spots, debug);

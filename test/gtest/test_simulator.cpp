@@ -10,60 +10,15 @@
 
 #include "structured_light_stabilizer/sim/scene_analysis.h"
 #include "structured_light_stabilizer/sim/simulator.h"
+#include "support/sim_measure.h"
 
 namespace sls = structured_light_stabilizer;
+using sim_measure::channelMoments;
+using sim_measure::Moments;
+using sim_measure::nightNoNoise;
 
 namespace
 {
-
-// Intensity centroid and second moments of one channel around a point.
-struct Moments
-{
-  double x = 0, y = 0, sxx = 0, syy = 0, sum = 0;
-};
-
-Moments channelMoments(const cv::Mat& img, int channel, const cv::Point2d& c, int half)
-{
-  Moments m;
-  const int u0 = std::max(0, static_cast<int>(std::round(c.x)) - half);
-  const int u1 = std::min(img.cols - 1, static_cast<int>(std::round(c.x)) + half);
-  const int v0 = std::max(0, static_cast<int>(std::round(c.y)) - half);
-  const int v1 = std::min(img.rows - 1, static_cast<int>(std::round(c.y)) + half);
-  double sx = 0, sy = 0, sxx = 0, syy = 0, s = 0;
-  for (int v = v0; v <= v1; ++v)
-    for (int u = u0; u <= u1; ++u)
-    {
-      double w;
-      if (img.depth() == CV_32F)
-        w = img.ptr<float>(v)[3 * u + channel];
-      else
-        w = img.ptr<uint8_t>(v)[3 * u + channel];
-      s += w;
-      sx += w * u;
-      sy += w * v;
-      sxx += w * u * u;
-      syy += w * v * v;
-    }
-  m.sum = s;
-  if (s > 0)
-  {
-    m.x = sx / s;
-    m.y = sy / s;
-    m.sxx = sxx / s - m.x * m.x;
-    m.syy = syy / s - m.y * m.y;
-  }
-  return m;
-}
-
-sls::SimulatorParams nightNoNoise()
-{
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 0.0;  // no rock background under the dots
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
-  return c;
-}
 
 bool isIdentity(const Eigen::Isometry3d& T, double tol)
 {
@@ -176,9 +131,14 @@ TEST(Simulator, NoiseFreeDotCentroidIsTheProjectedHitPoint)
   {
     sls::SimulatorParams c = nightNoNoise();
     c.lighting.dot_to_sun_ratio = 1.5;  // peaks stay below saturation
-    // Uniform albedo: each pixel of a dot reflects the albedo under it, so a
-    // textured rock bends centroids (AlbedoUnderTheDotBendsTheCentroid...).
+    // Uniform albedo on a plane (tilted, so the footprints are sheared): each
+    // pixel of a dot reflects the albedo under it, and on relief receives the
+    // irradiance of its own incidence, so texture and relief bend centroids
+    // (test_simulator_physics: DotOverAmbient..., DotOnRoughRock...).
     c.rock.albedo_min = c.rock.albedo_max = 0.3;
+    c.rock.relief_m = 0.0;
+    c.rock.tilt_x_rad = 0.25;
+    c.rock.tilt_y_rad = -0.3;
     if (distorted)
     {
       c.sensor.camera.distortion = sls::DistortionModel::kPlumbBob;
@@ -653,126 +613,4 @@ TEST(Simulator, FrameRequestTurnsTheProjectorOffAndMovesTheCamera)
   const double expected = c.sensor.camera.fx * 0.01 / c.rock.distance_m;
   EXPECT_NEAR(shift.x, expected, 0.1 * expected);
   EXPECT_NEAR(shift.y, 0.0, 0.5);
-}
-
-TEST(Simulator, DotOverAmbientIsTextureFreeWhileTheRawCentroidIsBent)
-{
-  // Per-pixel albedo (#14): a dot's pixels reflect the albedo under each of
-  // them, like the sunlit rock. On a flat rock with the fine texture (2 cm,
-  // +-25 %) in full sun, noise-free, the rock cast per pixel: the added light
-  // (on - off) divided by the sunlit rock (off) cancels the albedo, so the
-  // centroid of that ratio is the hit point's pixel (the two come from
-  // independent code: the rock's ray casts and the dot's tangent-plane map),
-  // while the plain centroid of the added light is pulled towards bright
-  // grains. Seeds 1 (rock) and 42 (noise), not tuned against.
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 1.0;
-  c.lighting.dot_to_sun_ratio = 0.5;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
-  c.rock.relief_m = 0.0;
-  c.rock.fine_texture_period_m = 0.02;
-  c.rock_subsample = 1;
-  const sls::Simulator sim(c);
-  const sls::SimFrame on = sim.render(0.0);
-  sls::FrameRequest off_request;
-  off_request.projector_on = false;
-  const sls::SimFrame off = sim.render(0.0, off_request);
-  double sum2_ratio = 0.0, sum2_raw = 0.0, worst_ratio = 0.0;
-  int n = 0;
-  for (size_t b = 0; b < on.points.size(); ++b)
-  {
-    const cv::Point2d p = on.pixels[b];
-    if (!on.visible[b] || p.x < 12 || p.y < 12 || p.x > 1011 || p.y > 1011)
-      continue;
-    double s_r = 0, sx_r = 0, sy_r = 0, s_a = 0, sx_a = 0, sy_a = 0;
-    for (int v = static_cast<int>(p.y) - 10; v <= static_cast<int>(p.y) + 10; ++v)
-      for (int u = static_cast<int>(p.x) - 10; u <= static_cast<int>(p.x) + 10; ++u)
-      {
-        const double added = on.linear.at<cv::Vec3f>(v, u)[1] - off.linear.at<cv::Vec3f>(v, u)[1];
-        const double ratio = added / off.linear.at<cv::Vec3f>(v, u)[1];
-        s_a += added;
-        sx_a += added * u;
-        sy_a += added * v;
-        s_r += ratio;
-        sx_r += ratio * u;
-        sy_r += ratio * v;
-      }
-    const double e_ratio = std::hypot(sx_r / s_r - p.x, sy_r / s_r - p.y);
-    const double e_raw = std::hypot(sx_a / s_a - p.x, sy_a / s_a - p.y);
-    worst_ratio = std::max(worst_ratio, e_ratio);
-    sum2_ratio += e_ratio * e_ratio;
-    sum2_raw += e_raw * e_raw;
-    ++n;
-  }
-  const double rms_ratio = std::sqrt(sum2_ratio / n), rms_raw = std::sqrt(sum2_raw / n);
-  std::cout << "[ MEASURE ] fine texture 2 cm +-25 %, " << n << " dots: raw centroid of the added light " << rms_raw
-            << " px RMS off the hit point; centroid of added / ambient " << rms_ratio << " px RMS (max " << worst_ratio
-            << ")\n";
-  ASSERT_GT(n, 80);
-  EXPECT_LT(worst_ratio, 0.02);
-  EXPECT_GT(rms_raw, 0.02);  // the texture really bends raw centroids
-  EXPECT_GT(rms_raw, 5.0 * rms_ratio);
-}
-
-TEST(Simulator, FineTextureModulatesBrightnessMostlyAndKeepsTheCoarseAlbedo)
-{
-  // The fine texture multiplies the coarse albedo (same seed): the ratio of
-  // the textured to the plain sunlit frame is the texture's factor, about
-  // +-amplitude in brightness with a quarter of that as hue (R against B).
-  // A weakly textured rock (texture_scale 0.1 m) has little albedo contrast
-  // over a few centimetres (what helper F's texture-poor tests need).
-  sls::SimulatorParams c;
-  c.lighting.sun_level = 1.0;
-  c.sensor.read_noise_dn = 0.0;
-  c.sensor.shot_noise = false;
-  c.keep_linear = true;
-  c.projector.power_scale = 0.0;
-  c.rock.relief_m = 0.0;
-  c.rock.fine_texture_period_m = 0.015;  // a cell of 2 mm either way: same grid
-  sls::SimulatorParams plain = c;
-  plain.rock.fine_texture_period_m = 0.0;
-  plain.rock.texture_scale_m = 0.01;  // also 2 mm cells
-  c.rock.texture_scale_m = 0.01;
-  const cv::Rect centre(312, 312, 400, 400);
-  const cv::Mat tex = sls::Simulator(c).render(0.0).linear(centre);
-  const cv::Mat base = sls::Simulator(plain).render(0.0).linear(centre);
-  std::vector<cv::Mat> t, b;
-  cv::split(tex, t);
-  cv::split(base, b);
-  const cv::Mat fg = t[1] / b[1], hue = (t[2] / b[2]) / (t[0] / b[0]);
-  cv::Scalar m_g, sd_g, m_h, sd_h;
-  cv::meanStdDev(fg, m_g, sd_g);
-  cv::meanStdDev(hue, m_h, sd_h);
-  double lo, hi;
-  cv::minMaxLoc(fg, &lo, &hi);
-  std::cout << "[ MEASURE ] fine texture 1.5 cm, amplitude 0.25: brightness factor mean " << m_g[0] << " sd " << sd_g[0]
-            << " range [" << lo << ", " << hi << "]; R/B hue factor sd " << sd_h[0] << "\n";
-  EXPECT_NEAR(m_g[0], 1.0, 0.05);
-  EXPECT_GT(sd_g[0], 0.08);
-  EXPECT_LT(sd_g[0], 0.2);
-  EXPECT_GT(hi, 1.15);
-  EXPECT_LT(hi, 1.26);
-  EXPECT_LT(lo, 0.85);
-  EXPECT_GT(lo, 0.74);
-  EXPECT_GT(sd_h[0], 0.01);
-  EXPECT_LT(sd_h[0], sd_g[0]);
-
-  // Albedo contrast over ~4 cm (high-pass: minus a 61 px box mean, 4 cm at
-  // 1.5 m), relative to the mean: the default rock against a weakly textured one.
-  auto fine_contrast = [&](double texture_scale)
-  {
-    sls::SimulatorParams w = plain;
-    w.rock.texture_scale_m = texture_scale;
-    cv::Mat g, smooth;
-    cv::extractChannel(sls::Simulator(w).render(0.0).linear(centre), g, 2);
-    cv::blur(g, smooth, cv::Size(61, 61));
-    cv::Scalar m, sd;
-    cv::meanStdDev(g - smooth, m, sd);
-    return sd[0] / cv::mean(g)[0];
-  };
-  const double rock = fine_contrast(0.02), weak = fine_contrast(0.1);
-  std::cout << "[ MEASURE ] albedo contrast below 4 cm: texture_scale 0.02 m " << rock << ", 0.1 m " << weak << "\n";
-  EXPECT_LT(weak, 0.5 * rock);
 }

@@ -1,6 +1,10 @@
-// SpotDetector on the scene simulator's frames (1024 x 1024 bgr8, truth from
-// the renderer): the issue's accuracy bounds for the fast method, the same
-// figures for the study's baseline (reported, no bound: it is the yardstick).
+// SpotDetector on the scene simulator's frames (1024 x 1024, truth from the
+// renderer, with the physics of issue #14: the dot's light reflected by the
+// albedo under each pixel, full well): the issue's bounds for the fast
+// method, the same figures for the study's baseline (reported, no bound: it
+// is the yardstick); an approach from 1.0 to 2.0 m with up to two thirds of
+// the dots clipped; fine rock texture by day with the reference channel and
+// with a projector-off frame.
 //
 // "The study's worst SNR case" (formula 2.26, SNR 32) is full sun on albedo
 // 5 % rock for the design dot (sigma ~2 px). A wider beam spreads the same
@@ -8,6 +12,15 @@
 // of the study. The bounded cases therefore scale the dot power with sigma^2
 // to keep the peak SNR at the study's worst case or better; the same-power
 // wide dots are measured and reported separately.
+//
+// Seeds: the albedo normalisation and the clipped-dot fit were tuned on rock
+// seeds 900-903 and on the seeds this file used before (2-17, 50001-50036,
+// 77, 99); every bound here is asserted on rock seeds from 3000 up.
+//
+// False spots: specks and minerals of a dot's size and of the projector's
+// colour cannot be told from dots in one frame (issue #14); the detector
+// reports them for the Triangulator's geometry to reject, so they are
+// counted and only bounded loosely here.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -49,6 +62,7 @@ struct Condition
 
 SimulatorParams config(double beam_sigma_rad, const Condition& c, bool keep_snr, uint32_t seed)
 {
+  seed += 3000;  // held out (see the file's header)
   SimulatorParams cfg;
   cfg.projector.beam_sigma_rad = beam_sigma_rad;
   cfg.lighting.sun_level = c.sun;
@@ -78,8 +92,11 @@ TEST(SpotDetectorSim, AccuracyAgainstTruth)
 {
   SpotDetectorParams pf, pb;
   pb.method = SpotMethod::kBaseline;
-  SpotDetector fast(pf), base(pb);
-  Score fast_all, base_all, fast_wide;
+  SpotDetectorParams praw;
+  praw.fast.normalise_albedo = false;
+  SpotDetector fast(pf), base(pb), raw(praw);
+  Score fast_all, base_all, fast_day, fast_night, raw_day;
+  double worst_recall = 1.0;
   uint32_t seed = 1;
   // beam_sigma_rad -> dot sigma in the image (defocus included) ~1.5, 2.1, 3, 4 px.
   for (double beam : {0.0014, 0.002, 0.0028, 0.0038})
@@ -108,22 +125,31 @@ TEST(SpotDetectorSim, AccuracyAgainstTruth)
       print(label, sb);
       fast_all.add(sf);
       base_all.add(sb);
-      if (beam > 0.0015)
-        fast_wide.add(sf);
+      (c.sun > 0 ? fast_day : fast_night).add(sf);
+      if (c.sun > 0)
+        raw_day.add(score(raw.detect(f.image, PixelFormat::kBgr8).spots, f));
+      worst_recall = std::min(worst_recall, sf.recall());
     }
   }
   print("all (specks + olive minerals present): fast", fast_all);
   print("all (specks + olive minerals present): baseline", base_all);
-  print("dots of sigma 2-4 px: fast", fast_wide);
-  EXPECT_LE(fast_all.rms(), 0.10);
+  print("by day: fast", fast_day);
+  print("by day: fast without the albedo normalisation", raw_day);
+  print("by night (no albedo in the frame: the light's centroid): fast", fast_night);
+  std::printf("[ MEASURE ] worst frame recall (fast): %.2f %%\n", 100.0 * worst_recall);
   EXPECT_GE(fast_all.recall(), 0.995);
+  EXPECT_GE(worst_recall, 0.98);
+  // By day the 2 cm texture of 5-45 % albedo is divided out; what is left
+  // comes from the dimmest dots (peak SNR down to 9 at sigma 4) and from the
+  // sun's shading of the rock's roughness (docs/spot_detector.md).
+  EXPECT_LE(fast_day.rms(), 0.18);
+  EXPECT_LT(fast_day.rms(), 0.6 * raw_day.rms());
+  // By night the 2 cm texture of 5-45 % albedo pulls each dot's light off
+  // the hit point (sigma^2 x the albedo's log-gradient; physics, not the
+  // detector): reported, bounded loosely.
+  EXPECT_LE(fast_night.rms(), 0.8);
   EXPECT_LT(fast_all.rms(), base_all.rms());
-  // With 20 green specks and 20 olive minerals in view. Specks (sigma
-  // 0.6-1.4 px) are as small as sigma-1.5 dots and, on the darkest rock, as
-  // green: what tells them apart is the frame-level test of size and energy
-  // (a speck is off in both; see SpotDetectorParams).
-  EXPECT_LE(fast_all.falsePerFrame(), 0.1);
-  EXPECT_LE(fast_wide.falsePerFrame(), 0.1);
+  EXPECT_LE(fast_all.falsePerFrame(), 5.0);
 }
 
 namespace
@@ -163,8 +189,8 @@ double worstCaseSnr(const Simulator& sim)
   const double beam_px = LightingParams::kReferenceBeamSigmaRad * sc.camera.fx;
   const double defocus_px = sim.diameterOfConfusion(LightingParams::kReferenceDistanceM) / 4.0 / sc.pixel_size_m;
   const double image_dist = 1.0 / (1.0 / sc.focal_length_m - 1.0 / sc.focus_distance_m);
-  const double diffraction_px = 0.42 * sim.params().projector.wavelength_nm * 1e-9 * image_dist /
-                                sc.aperture_diameter_m / sc.pixel_size_m;
+  const double diffraction_px =
+      0.42 * sim.params().projector.wavelength_nm * 1e-9 * image_dist / sc.aperture_diameter_m / sc.pixel_size_m;
   const double var = beam_px * beam_px + defocus_px * defocus_px + diffraction_px * diffraction_px + 1.0 / 12.0;
   const double background = LightingParams::kSunFullScaleDn * 0.05 * 0.55;
   const double peak = defaults.lighting.dot_to_sun_ratio * background * beam_px * beam_px / var;
@@ -172,25 +198,22 @@ double worstCaseSnr(const Simulator& sim)
 }
 }  // namespace
 
-// The false-spot bound over more frames than the test above (16 frames can
-// only show 0, 1, 2... false spots): sunlit frames only, since clutter is
-// sunlit reflectance and vanishes at night. Fast method only.
+// Recall over more frames than the test above: sunlit frames only, where
+// clutter (sunlit reflectance) is in view. Fast method only.
 //
-// Recall: the issue's bounds hold "at the study's worst SNR case and
-// better". Sunlit slopes turned from the projector (cos of the incidence),
-// the lens's cos^4 vignetting towards the corners and dark rock put many
-// dots of the "worst SNR" condition below that case (peak SNR 25-47, against
-// 47 for the study's worst case, worstCaseSnr()), so recall is bounded at
-// 99.5 % over the dots whose peak SNR (dotSnr(), from the simulator's truth)
-// is at or above the study's worst case, and reported, with a loose bound,
-// over all visible dots and over those below it.
-TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
+// Recall over every visible dot (issue #14), the ones that sunlit slopes
+// turned from the projector (cos of the incidence), the lens's cos^4
+// vignetting towards the corners and dark rock put below the study's worst
+// case included (peak SNR down to ~24, against 47 for the study's worst
+// case, worstCaseSnr()): pooled, split at that SNR (dotSnr(), from the
+// simulator's truth), and in every frame.
+TEST(SpotDetectorSim, RecallOverManySunlitFrames)
 {
   SpotDetector fast;
   Score s, in_scope, below;
-  double worst_snr = 0, min_snr = 1e9;
-  uint32_t seed = 50000;
-  for (int rep = 0; rep < 3; ++rep)
+  double worst_snr = 0, min_snr = 1e9, worst_frame = 1.0;
+  uint32_t seed = 500;
+  for (int rep = 0; rep < 2; ++rep)
     for (double beam : {0.0014, 0.002, 0.0028, 0.0038})
       for (int c = 0; c < 3; ++c)  // the sunlit conditions
       {
@@ -200,7 +223,9 @@ TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
         worst_snr = worstCaseSnr(sim);
         const SimFrame f = sim.render(0.3 * (seed % 100));
         const Spots spots = fast.detect(f.image, PixelFormat::kBgr8).spots;
-        s.add(score(spots, f));
+        const Score frame = score(spots, f);
+        s.add(frame);
+        worst_frame = std::min(worst_frame, frame.recall());
         // Recall split by SNR: the same matching, truth restricted.
         std::vector<cv::Point2d> hi, lo;
         for (size_t t = 0; t < f.visible.size(); ++t)
@@ -216,17 +241,20 @@ TEST(SpotDetectorSim, FalseSpotsOverManySunlitFrames)
       }
   std::printf("[ MEASURE ] study's worst case: peak SNR %.1f; dots in these frames: down to %.1f\n", worst_snr,
               min_snr);
-  print("36 sunlit frames, sigma 1.5-4 px: fast", s);
+  print("24 sunlit frames, sigma 1.5-4 px: fast", s);
   std::printf("[ MEASURE ] recall at peak SNR >= %.1f (the issue's scope): %6.2f %% (%d/%d); below: %6.2f %% (%d/%d)\n",
               worst_snr, 100.0 * in_scope.recall(), in_scope.matched, in_scope.truth, 100.0 * below.recall(),
               below.matched, below.truth);
-  EXPECT_LE(s.falsePerFrame(), 0.1);
-  EXPECT_LE(s.rms(), 0.10);
-  EXPECT_GT(in_scope.truth, 1000);  // the scope is not emptied by a wrong reference
+  EXPECT_LE(s.falsePerFrame(), 5.0);
+  EXPECT_LE(s.rms(), 0.14);
+  EXPECT_GT(in_scope.truth, 700);  // the scope is not emptied by a wrong reference
   EXPECT_GE(in_scope.recall(), 0.995);
-  // Below the study's worst case: reported, bounded loosely.
+  // Every visible dot, those dimmed below the study's worst case by slopes
+  // and vignetting included, pooled and in every frame.
   EXPECT_GE(below.recall(), 0.98);
-  EXPECT_GE(s.recall(), 0.99);
+  EXPECT_GE(s.recall(), 0.995);
+  EXPECT_GE(worst_frame, 0.98);
+  std::printf("[ MEASURE ] worst frame recall: %.2f %%\n", 100.0 * worst_frame);
 }
 
 // Same projector power spread over a wider beam: below the study's worst SNR.
@@ -235,13 +263,13 @@ TEST(SpotDetectorSim, WideDimDotsBelowTheStudysWorstSnr)
 {
   SpotDetector fast;
   Score s;
-  const Simulator sim(config(0.0038, kConditions[0], false, 77));
+  const Simulator sim(config(0.0038, kConditions[0], false, 177));
   const SimFrame f = sim.render(0.5);
   s.add(score(fast.detect(f.image, PixelFormat::kBgr8).spots, f));
   print("sigma 4 px, same power (peak SNR ~9), worst sun/albedo: fast", s);
   EXPECT_GE(s.recall(), 0.6);
   EXPECT_LE(s.rms(), 0.4);
-  EXPECT_LE(s.falsePerFrame(), 1.0);
+  EXPECT_LE(s.falsePerFrame(), 10.0);
 }
 
 // Dot-sized green mineral blobs have the projector's colour in this
@@ -253,7 +281,7 @@ TEST(SpotDetectorSim, GreenMineralBlobs)
 {
   SpotDetector fast;
   Score s;
-  SimulatorParams cfg = config(0.002, kConditions[1], true, 99);
+  SimulatorParams cfg = config(0.002, kConditions[1], true, 199);
   cfg.clutter.green_blobs = 10;
   const Simulator sim(cfg);
   const SimFrame f = sim.render(0.2);
@@ -263,4 +291,140 @@ TEST(SpotDetectorSim, GreenMineralBlobs)
   EXPECT_GE(s.recall(), 0.98);
   EXPECT_LE(s.rms(), 0.2);
   EXPECT_LE(s.falsePerFrame(), 10.0);
+}
+
+namespace
+{
+// Visible beams' pixels, and those of the clipped ones.
+std::vector<cv::Point2d> visiblePixels(const SimFrame& f, int* clipped)
+{
+  std::vector<cv::Point2d> truth;
+  *clipped = 0;
+  for (size_t t = 0; t < f.visible.size(); ++t)
+    if (f.visible[t])
+    {
+      truth.push_back(f.pixels[t]);
+      *clipped += f.clipped[t];
+    }
+  return truth;
+}
+
+// The rig at `distance_m` from a rock of rock seed `seed` (held out), default
+// sun and dots (the study's brightness: bright rock clips the dots).
+SimulatorParams rigAt(double distance_m, uint32_t seed)
+{
+  SimulatorParams cfg;
+  cfg.rock.distance_m = distance_m;
+  cfg.rock.seed = seed;
+  cfg.noise_seed = seed * 7 + 1;
+  cfg.clutter.green_specks = 10;
+  cfg.clutter.olive_minerals = 10;
+  return cfg;
+}
+}  // namespace
+
+// The rig approaches the rock to 1.0 m and recedes to 2.0 m: the dots grow
+// brighter with the inverse square and clip on the brighter rock (up to two
+// thirds of them at 1.0 m); every dot must be found in every frame.
+TEST(SpotDetectorSim, ApproachWithClippedDots)
+{
+  SpotDetector fast;
+  Score pooled;
+  double worst = 1.0;
+  int most_clipped = 0, least_clipped = 1000;
+  uint32_t seed = 3100;
+  for (double d : {1.0, 1.2, 1.4, 1.6, 1.8, 2.0, 1.9, 1.7, 1.5, 1.3, 1.1})
+  {
+    const Simulator sim(rigAt(d, ++seed));
+    const SimFrame f = sim.render(0.0);
+    int clipped = 0;
+    const std::vector<cv::Point2d> truth = visiblePixels(f, &clipped);
+    const SpotDetectionResult r = fast.detect(f.image, PixelFormat::kBgr8);
+    ASSERT_TRUE(r.ok) << r.error;
+    const Score s = test::score(r.spots, truth);
+    pooled.add(s);
+    worst = std::min(worst, s.recall());
+    const int percent = static_cast<int>(std::lround(100.0 * clipped / std::max<size_t>(1, truth.size())));
+    most_clipped = std::max(most_clipped, percent);
+    least_clipped = std::min(least_clipped, percent);
+    char label[96];
+    std::snprintf(label, sizeof(label), "approach: %.1f m, %d %% of the dots clipped", d, percent);
+    print(label, s);
+  }
+  print("approach 1.0 -> 2.0 -> 1.1 m, 11 frames", pooled);
+  EXPECT_GE(most_clipped, 50);  // the premise: the near frames clip most dots
+  EXPECT_LE(least_clipped, 10);
+  EXPECT_GE(pooled.recall(), 0.995);
+  EXPECT_GE(worst, 0.98);
+  EXPECT_LE(pooled.rms(), 0.08);
+}
+
+namespace
+{
+// Fine texture of the given period (m) and +-25 %, by day; a few frames.
+struct TextureRun
+{
+  Score none, reference, ambient;
+};
+
+TextureRun texturedByDay(double relief_m, uint32_t seed)
+{
+  SpotDetectorParams off;
+  off.fast.normalise_albedo = false;
+  SpotDetector raw(off), normalised;
+  TextureRun run;
+  for (double period : {0.01, 0.02, 0.03})
+    for (double sun : {0.5, 1.0})
+    {
+      SimulatorParams cfg = rigAt(1.5, ++seed);
+      cfg.rock.fine_texture_period_m = period;
+      cfg.rock.fine_texture_amplitude = 0.25;
+      cfg.rock.relief_m = relief_m;
+      cfg.lighting.sun_level = sun;
+      const Simulator sim(cfg);
+      const SimFrame f = sim.render(0.0);
+      FrameRequest off_frame;
+      off_frame.projector_on = false;
+      const SimFrame a = sim.render(0.0, off_frame);
+      int clipped = 0;
+      const std::vector<cv::Point2d> truth = visiblePixels(f, &clipped);
+      run.none.add(test::score(raw.detect(f.image, PixelFormat::kBgr8).spots, truth));
+      run.reference.add(test::score(normalised.detect(f.image, PixelFormat::kBgr8).spots, truth));
+      run.ambient.add(test::score(normalised.detect(f.image, a.image, PixelFormat::kBgr8).spots, truth));
+    }
+  return run;
+}
+}  // namespace
+
+// Fine rock texture (1-3 cm, +-25 %) by day: the dot's light divided by the
+// albedo under each pixel, from the reference channel or a projector-off
+// frame. On the default rough rock (relief 0.15 m with a 1-2 cm roughness)
+// the ambient light carries the sun's shading of the roughness and a dot the
+// projector's, so the ratio keeps cos(projector incidence) / cos(sun
+// incidence) across the footprint (docs/spot_detector.md); on a flat rock
+// only the texture is left to remove.
+TEST(SpotDetectorSim, FineTextureByDay)
+{
+  const TextureRun rough = texturedByDay(0.15, 3200);
+  const TextureRun flat = texturedByDay(0.0, 3300);
+  print("fine texture by day, rough rock: no normalisation", rough.none);
+  print("fine texture by day, rough rock: reference channel", rough.reference);
+  print("fine texture by day, rough rock: projector-off frame", rough.ambient);
+  print("fine texture by day, flat rock: no normalisation", flat.none);
+  print("fine texture by day, flat rock: reference channel", flat.reference);
+  print("fine texture by day, flat rock: projector-off frame", flat.ambient);
+  for (const TextureRun* r : {&rough, &flat})
+  {
+    EXPECT_GE(r->reference.recall(), 0.995);
+    EXPECT_GE(r->ambient.recall(), 0.995);
+    EXPECT_LT(r->reference.rms(), 0.8 * r->none.rms());
+    EXPECT_LT(r->ambient.rms(), 0.6 * r->none.rms());
+  }
+  // Measured 0.046 / 0.073 px with the projector-off frame, 0.136 / 0.101
+  // with the reference channel (flat / rough; the reference misses the
+  // texture's own hue, R against B).
+  EXPECT_LE(flat.ambient.rms(), 0.06);
+  EXPECT_LE(rough.ambient.rms(), 0.095);
+  EXPECT_LE(flat.reference.rms(), 0.17);
+  EXPECT_LE(rough.reference.rms(), 0.125);
 }

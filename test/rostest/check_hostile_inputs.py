@@ -51,7 +51,9 @@ ENCODINGS = {
 for _depth, _size in (("8U", 1), ("8S", 1), ("16U", 2), ("16S", 2), ("32S", 4), ("32F", 4), ("64F", 8)):
     for _ch in range(1, 5):
         ENCODINGS["%sC%d" % (_depth, _ch)] = _size * _ch
-ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1")  # SpotDetector's inputs (docs/interface.md; 8UC1 = mono8)
+# SpotDetector's inputs (docs/interface.md; 8UC1 = mono8, 16UC1 = mono16).
+ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1", "mono16", "16UC1", "bayer_rggb8", "bayer_bggr8",
+            "bayer_gbrg8", "bayer_grbg8", "yuv422", "yuv422_yuy2")
 
 
 def image(width, height, encoding, step=None, data=None, fill=0):
@@ -351,9 +353,9 @@ class HostileInputs(unittest.TestCase):
 
         good_info_copy = lambda: camera_info(W, H, good_info.K[0], good_info.K[4], good_info.K[2], good_info.K[5])
 
-        # Every encoding ROS knows, well-formed 64x48 frames; the detector
-        # takes bgr8, rgb8, bgra8, rgba8, mono8, so those are not bad and
-        # are sent separately below on a real frame.
+        # Every encoding ROS knows, well-formed 64x48 frames; the detector's
+        # own (ACCEPTED) are not bad: some are sent separately below on a
+        # real frame.
         for enc in sorted(ENCODINGS):
             if enc in ACCEPTED:
                 continue
@@ -434,7 +436,7 @@ class HostileInputs(unittest.TestCase):
         # A burst of 200 bad frames at 200 Hz, three kinds in turn.
         mark = self.log_mark()
         burst_start = time.time()
-        kinds = [lambda: image(0, 0, "bgr8", data=b""), lambda: image(32, 24, "16UC1", fill=7),
+        kinds = [lambda: image(0, 0, "bgr8", data=b""), lambda: image(32, 24, "32FC1", fill=7),
                  lambda: image(32, 24, "bgr8", data=bytes(100))]
         for k in range(200):
             msg = kinds[k % 3]()

@@ -45,7 +45,46 @@ def render_bgr(sigma=2.0, seed=1):
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
-def image_msg(array, encoding, step=None, seq=0):
+def bayer_rggb(bgr):
+    """The RGGB mosaic of a bgr8 frame: each site keeps its own colour."""
+    out = np.empty((H, W), np.uint8)
+    out[0::2, 0::2] = bgr[0::2, 0::2, 2]
+    out[0::2, 1::2] = bgr[0::2, 1::2, 1]
+    out[1::2, 0::2] = bgr[1::2, 0::2, 1]
+    out[1::2, 1::2] = bgr[1::2, 1::2, 0]
+    return out
+
+
+def uyvy(bgr):
+    """yuv422 (UYVY) of a bgr8 frame, BT.601 video range, chroma of each pixel pair averaged."""
+    f = bgr.astype(np.float64)
+    b, g, r = f[:, :, 0], f[:, :, 1], f[:, :, 2]
+    y = 16.0 + 0.256788 * r + 0.504129 * g + 0.097906 * b
+    u = 128.0 - 0.148223 * r - 0.290993 * g + 0.439216 * b
+    v = 128.0 + 0.439216 * r - 0.367788 * g - 0.071427 * b
+    out = np.empty((H, W, 2), np.float64)
+    out[:, 0::2, 0] = 0.5 * (u[:, 0::2] + u[:, 1::2])
+    out[:, 1::2, 0] = 0.5 * (v[:, 0::2] + v[:, 1::2])
+    out[:, :, 1] = y
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def render_red_bgr(seed=1):
+    """Greenish-grey rock, red Gaussian dots (the sensor's response to a 650 nm projector)."""
+    rng = np.random.default_rng(seed)
+    img = np.empty((H, W, 3), np.float64)
+    img[:] = (30.0, 40.0, 35.0)
+    ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
+    for (x, y) in dots_truth():
+        d = 180.0 * np.exp(-((xs - x) ** 2 + (ys - y) ** 2) / (2 * 2.0 * 2.0))
+        img[:, :, 0] += 0.04 * d
+        img[:, :, 1] += 0.10 * d
+        img[:, :, 2] += d
+    img += rng.normal(0.0, 1.0, img.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def image_msg(array, encoding, step=None, seq=0, bigendian=False):
     msg = Image()
     msg.header.stamp = rospy.Time.now()
     msg.header.frame_id = "camera_optical_frame"
@@ -53,6 +92,9 @@ def image_msg(array, encoding, step=None, seq=0):
     msg.height = array.shape[0] if array.ndim >= 1 else 0
     msg.width = array.shape[1] if array.ndim >= 2 else 0
     msg.encoding = encoding
+    msg.is_bigendian = 1 if bigendian else 0
+    if bigendian:
+        array = array.astype(array.dtype.newbyteorder(">"))
     bpp = array.itemsize * (array.shape[2] if array.ndim == 3 else 1)
     msg.step = step if step is not None else msg.width * bpp
     if step is not None and step > msg.width * bpp:
@@ -157,12 +199,39 @@ class SpotDetectorInput(unittest.TestCase):
         self.check_accuracy(out, 0.1, "fast mono8")
         self.assertTrue(self.wait_log("mono8 input"), "no mono8 warning")
 
+    def test_1b_raw_camera_encodings(self):
+        # What a machine-vision driver sends (#16): Bayer, yuv422, 16-bit mono
+        # (both byte orders), each read in place.
+        bgr = render_bgr(seed=21)
+        self.check_accuracy(self.send(image_msg(bayer_rggb(bgr), "bayer_rggb8")), 0.1, "fast bayer_rggb8")
+        self.check_accuracy(self.send(image_msg(uyvy(bgr), "yuv422")), 0.1, "fast yuv422 (UYVY)")
+        yuyv = uyvy(bgr).reshape(H, W * 2)
+        yuyv = yuyv.reshape(H, W // 2, 4)[:, :, [1, 0, 3, 2]].reshape(H, W, 2).copy()
+        self.check_accuracy(self.send(image_msg(yuyv, "yuv422_yuy2")), 0.1, "fast yuv422_yuy2 (YUYV)")
+        mono16 = (np.clip(bgr[:, :, 1].astype(np.int32) + 60, 0, 255) * 257).astype(np.uint16)
+        self.check_accuracy(self.send(image_msg(mono16, "mono16")), 0.1, "fast mono16")
+        self.check_accuracy(self.send(image_msg(mono16, "mono16", bigendian=True)), 0.1, "fast mono16 big-endian")
+        self.check_accuracy(self.send(image_msg(mono16, "16UC1")), 0.1, "fast 16UC1")
+
+    def test_1c_projector_color(self):
+        cfg = self.reconf.update_configuration({"projector_color": "red"})
+        self.assertEqual(cfg["projector_color"], "red")
+        self.check_accuracy(self.send(image_msg(render_red_bgr(seed=31), "bgr8")), 0.1, "fast bgr8, red projector")
+        # An unknown colour keeps the last good one, with a warning.
+        cfg = self.reconf.update_configuration({"projector_color": "purple"})
+        self.assertEqual(cfg["projector_color"], "red")
+        self.assertTrue(self.wait_log("unknown projector_color"))
+        self.reconf.update_configuration({"projector_color": "green"})
+        self.check_accuracy(self.send(image_msg(render_bgr(seed=32), "bgr8")), 0.1, "fast bgr8, green again")
+
     def test_2_bad_input_survives(self):
         bad = [
-            ("16UC1", image_msg(np.full((H, W), 1000, np.uint16), "16UC1"), "unsupported image encoding '16UC1'"),
             ("32FC1", image_msg(np.full((H, W), 0.5, np.float32), "32FC1"), "unsupported image encoding '32FC1'"),
-            ("bayer", image_msg(np.zeros((H, W), np.uint8), "bayer_rggb8"), "unsupported image encoding 'bayer_rggb8'"),
+            ("bayer16", image_msg(np.zeros((H, W), np.uint16), "bayer_rggb16"),
+             "unsupported image encoding 'bayer_rggb16'"),
         ]
+        odd = image_msg(np.zeros((H, W - 1, 2), np.uint8), "yuv422")
+        bad.append(("yuv422 of odd width", odd, "odd width"))
         empty = Image()
         empty.encoding = "bgr8"
         bad.append(("empty", empty, "inconsistent image"))

@@ -1,0 +1,284 @@
+// The inputs layer of the fast method: colour models, the score grid of the
+// threshold pass and the intensity path's background maps (see
+// spot_detector_planes.h). The windows of the refinement are in
+// spot_detector_windows.cpp; the SIMD row passes in spot_detector_rows.cpp.
+#include "spot_detector_planes.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+#include "spot_detector_pixels.h"
+
+namespace structured_light_stabilizer
+{
+namespace fast_detector
+{
+
+// The colour table. Green: the parameters (red_weight, led ratios). Red
+// (635-660 nm) and blue (450 nm): a typical colour sensor's response there
+// (about 10 % in green and 4 % in blue for red light; 12-20 % in green and 3 %
+// in red for blue light) and the reddish rock's ratios (r/g <= 2.2, r/b <=
+// 3; b/r <= 0.5, b/g <= 0.85).
+ColourModel colourModel(ProjectorColor color, bool colour_frame, const FastParams& p)
+{
+  ColourModel m;
+  if (!colour_frame || color == ProjectorColor::kNir || color == ProjectorColor::kWhite)
+  {
+    m.colour = false;
+    return m;
+  }
+  switch (color)
+  {
+    case ProjectorColor::kRed:
+      m = {true, kRed, kGreen, kBlue, 2.2, 3.0, 0.10, 0.04};
+      break;
+    case ProjectorColor::kBlue:
+      m = {true, kBlue, kRed, kGreen, 0.5, 0.85, 0.03, 0.15};
+      break;
+    default:
+      m = {true, kGreen, kRed, kBlue, p.red_weight, 1.0, p.colour_test.led_red_ratio, p.colour_test.led_blue_ratio};
+      break;
+  }
+  return m;
+}
+
+// ---------------------------------------------------------------------------
+// Binding a frame.
+
+void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, ProjectorColor color,
+                       const FastParams& p)
+{
+  image_ = image;
+  ambient_ = ambient;
+  format_ = format;
+  model_ = colourModel(color, hasColour(format), p);
+  scale_ = isBayer(format) ? 2 : 1;
+  grid_cols_ = image.cols / scale_;
+  grid_rows_ = image.rows / scale_;
+  unit_ = model_.colour ? 1 : 16;
+  k_ref_ = static_cast<int>(std::lround(model_.reference_weight * 256.0));
+  k_third_ = static_cast<int>(std::lround(model_.third_weight * 256.0));
+  threshold_ = scale_ == 2 ? std::max(1, (3 * p.detect_threshold + 3) / 4) : p.detect_threshold;
+  saturation_ = format == PixelFormat::kMono16 ? p.saturation_level * 257 : p.saturation_level;
+  row_scores_.resize(static_cast<size_t>(std::max(grid_cols_, 1)));
+  if (!model_.colour)
+    buildIntensityMaps(p);
+}
+
+// ---------------------------------------------------------------------------
+// Cells.
+
+FramePlanes::Triple FramePlanes::cellAt(const cv::Mat& m, int gx, int gy) const
+{
+  Triple t;
+  pixels::decodeCell(m, format_, gx, gy, t.c);
+  return t;
+}
+
+int FramePlanes::colourScore(const Triple& t) const
+{
+  const int s = t.c[model_.signal], r = t.c[model_.reference], b = t.c[model_.third];
+  return s - std::max((k_ref_ * r) >> 8, (k_third_ * b) >> 8);
+}
+
+int FramePlanes::intensity(const Triple& t) const
+{
+  return pixels::intensity16(format_, t.c);
+}
+
+int FramePlanes::levelOf(int gx, int gy) const
+{
+  return block_level_.at<int>(gy / kBlock, gx / kBlock);
+}
+
+int FramePlanes::thresholdOf(int gx, int gy) const
+{
+  return model_.colour ? threshold_ : block_threshold_.at<int>(gy / kBlock, gx / kBlock);
+}
+
+int FramePlanes::cellScore(int gx, int gy) const
+{
+  if (ambient_.empty())  // the hot paths: a colour camera's bgr8, a mono camera's mono8
+  {
+    if (format_ == PixelFormat::kMono8)
+      return 16 * image_.ptr<uint8_t>(gy)[gx] - levelOf(gx, gy);
+    if (format_ == PixelFormat::kBgr8 && model_.colour)
+    {
+      const uint8_t* px = image_.ptr<uint8_t>(gy) + 3 * gx;
+      return colourScore(Triple{{px[2], px[1], px[0]}});
+    }
+  }
+  Triple t = cellAt(image_, gx, gy);
+  if (model_.colour)
+  {
+    if (!ambient_.empty())
+    {
+      const Triple a = cellAt(ambient_, gx, gy);
+      for (int k = 0; k < 3; ++k)
+        t.c[k] = std::max(0, t.c[k] - a.c[k]);
+    }
+    return colourScore(t);
+  }
+  int v = intensity(t);
+  if (!ambient_.empty())
+    v -= intensity(cellAt(ambient_, gx, gy));
+  return v - levelOf(gx, gy);
+}
+
+int FramePlanes::scoreAt(int gx, int gy) const
+{
+  if (gx < 0 || gy < 0 || gx >= grid_cols_ || gy >= grid_rows_)
+    return -1;
+  return cellScore(gx, gy);
+}
+
+// ---------------------------------------------------------------------------
+// Rows of the threshold pass.
+
+// Any format and path: one row decoded into channel arrays (a switch per
+// row, simple loops per cell), scored, compared.
+void FramePlanes::scoreRow(int gy, int16_t* out) const
+{
+  const int n = grid_cols_;
+  std::vector<int> c(3 * static_cast<size_t>(n)), a;
+  pixels::decodeRow(image_, format_, gy, n, c.data());
+  if (!ambient_.empty())
+  {
+    a.resize(c.size());
+    pixels::decodeRow(ambient_, format_, gy, n, a.data());
+  }
+  for (int gx = 0; gx < n; ++gx)
+  {
+    Triple t{{c[3 * gx], c[3 * gx + 1], c[3 * gx + 2]}};
+    int v;
+    if (model_.colour)
+    {
+      if (!a.empty())
+        for (int k = 0; k < 3; ++k)
+          t.c[k] = std::max(0, t.c[k] - a[3 * gx + k]);
+      v = colourScore(t);
+    }
+    else
+    {
+      v = intensity(t);
+      if (!a.empty())
+        v -= intensity(Triple{{a[3 * gx], a[3 * gx + 1], a[3 * gx + 2]}});
+      v -= levelOf(gx, gy);
+    }
+    out[gx] = static_cast<int16_t>(std::min(32767, std::max(-32768, v)));
+  }
+}
+
+void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
+{
+  if (fusedRowRuns(gy, runs, acc))
+    return;
+  int16_t* s = row_scores_.data();
+  scoreRow(gy, s);
+  for (int gx = 0; gx < grid_cols_; ++gx)
+  {
+    if (acc)
+      acc[gx] = static_cast<uint16_t>(acc[gx] + std::min(255, std::max(0, int(s[gx]))));
+    if (s[gx] >= thresholdOf(gx, gy))
+      rows::markCell(runs, gy, gx);
+  }
+}
+
+bool FramePlanes::fusedRowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
+{
+  if (model_.colour)
+    return rows::colourRowRuns(image_, ambient_, format_, model_, k_ref_, k_third_, threshold_, gy, runs, acc);
+  if (!ambient_.empty())
+    return false;
+  if (format_ == PixelFormat::kMono8)
+  {
+    const int* level = block_level_.ptr<int>(gy / kBlock);
+    const int* thr = block_threshold_.ptr<int>(gy / kBlock);
+    rows::monoRowRuns(image_.ptr<uint8_t>(gy), grid_cols_, gy, kBlock, level, thr, runs);
+    return true;
+  }
+  return false;
+}
+
+// ---------------------------------------------------------------------------
+// The intensity path's maps.
+
+namespace
+{
+// 3 x 3 grey-level erosion or dilation of an int map, edges replicated.
+cv::Mat filter3x3(const cv::Mat& m, bool min)
+{
+  cv::Mat out(m.size(), CV_32S);
+  for (int y = 0; y < m.rows; ++y)
+    for (int x = 0; x < m.cols; ++x)
+    {
+      int v = m.at<int>(y, x);
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx)
+        {
+          const int q = m.at<int>(std::min(m.rows - 1, std::max(0, y + dy)), std::min(m.cols - 1, std::max(0, x + dx)));
+          v = min ? std::min(v, q) : std::max(v, q);
+        }
+      out.at<int>(y, x) = v;
+    }
+  return out;
+}
+}  // namespace
+
+// Background: an opening (min, then max, over 3 x 3 blocks) of the 16 x 16
+// block means, so a dot (which touches at most 2 x 2 blocks) does not raise
+// it. Noise: 0.886 x the mean absolute difference of horizontal neighbours
+// (two rows per block), the least of 3 x 3 blocks, so neither a dot nor
+// texture in one block raises it. Both in 1/16 DN.
+void FramePlanes::buildIntensityMaps(const FastParams& p)
+{
+  const int bc = (grid_cols_ + kBlock - 1) / kBlock, br = (grid_rows_ + kBlock - 1) / kBlock;
+  cv::Mat sum(br, bc, CV_64F, cv::Scalar(0)), count(br, bc, CV_64F, cv::Scalar(0));
+  cv::Mat diff(br, bc, CV_64F, cv::Scalar(0)), diff_count(br, bc, CV_64F, cv::Scalar(0));
+  std::vector<int> c(3 * static_cast<size_t>(grid_cols_)), a, v(grid_cols_);
+  for (int gy = 0; gy < grid_rows_; ++gy)
+  {
+    pixels::decodeRow(image_, format_, gy, grid_cols_, c.data());
+    if (!ambient_.empty())
+    {
+      a.resize(c.size());
+      pixels::decodeRow(ambient_, format_, gy, grid_cols_, a.data());
+    }
+    for (int gx = 0; gx < grid_cols_; ++gx)
+    {
+      v[gx] = pixels::intensity16(format_, &c[3 * gx]) - (a.empty() ? 0 : pixels::intensity16(format_, &a[3 * gx]));
+      sum.at<double>(gy / kBlock, gx / kBlock) += v[gx];
+      count.at<double>(gy / kBlock, gx / kBlock) += 1;
+    }
+    if (gy % (kBlock / 2) != kBlock / 4)
+      continue;
+    for (int gx = 0; gx + 1 < grid_cols_; ++gx)
+    {
+      diff.at<double>(gy / kBlock, gx / kBlock) += std::abs(v[gx + 1] - v[gx]);
+      diff_count.at<double>(gy / kBlock, gx / kBlock) += 1;
+    }
+  }
+  cv::Mat mean(br, bc, CV_32S), noise(br, bc, CV_32S);
+  for (int y = 0; y < br; ++y)
+    for (int x = 0; x < bc; ++x)
+    {
+      mean.at<int>(y, x) = static_cast<int>(std::lround(sum.at<double>(y, x) / std::max(1.0, count.at<double>(y, x))));
+      const double d = diff_count.at<double>(y, x) > 0 ? diff.at<double>(y, x) / diff_count.at<double>(y, x) : 1e9;
+      noise.at<int>(y, x) = static_cast<int>(std::min(1e9, std::ceil(0.886 * d)));
+    }
+  block_level_ = filter3x3(filter3x3(mean, true), false);
+  noise = filter3x3(noise, true);
+  block_threshold_.create(br, bc, CV_32S);
+  const int floor16 = 16 * p.mono_threshold;
+  for (int y = 0; y < br; ++y)
+    for (int x = 0; x < bc; ++x)
+    {
+      const double n = std::min(noise.at<int>(y, x), 16 * 255);
+      block_threshold_.at<int>(y, x) = std::max(floor16, static_cast<int>(std::ceil(p.intensity_snr * n)));
+    }
+}
+
+}  // namespace fast_detector
+}  // namespace structured_light_stabilizer

@@ -1,0 +1,204 @@
+// The inputs layer's windows: the planes of a frame (and of its ambient
+// frame) at full resolution around a candidate (see spot_detector_planes.h).
+#include <algorithm>
+
+#include "spot_detector_pixels.h"
+#include "spot_detector_planes.h"
+
+namespace structured_light_stabilizer
+{
+namespace fast_detector
+{
+
+// One pixel of m: the signal, reference and third planes (8-bit DN), whether
+// the signal is measured here, and whether a sample it depends on is clipped.
+void FramePlanes::fillPixel(const cv::Mat& m, int x, int y, float* s, float* r, float* t, bool* sample,
+                            bool* clipped) const
+{
+  *sample = true;
+  *r = *t = 0.0f;
+  if (format_ == PixelFormat::kMono8 || format_ == PixelFormat::kMono16)
+  {
+    const int v = format_ == PixelFormat::kMono8 ? m.ptr<uint8_t>(y)[x] : m.ptr<uint16_t>(y)[x];
+    *s = format_ == PixelFormat::kMono8 ? static_cast<float>(v) : static_cast<float>(v / 257.0);
+    *clipped = v >= saturation_;
+    return;
+  }
+  if (isBayer(format_))
+  {
+    bool any = false;
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx)
+        any = any || pixels::bayerRaw(m, x + dx, y + dy) >= saturation_;
+    *clipped = any;
+    if (!model_.colour)  // nir/white: every site sees the projector
+    {
+      *s = static_cast<float>(pixels::bayerRaw(m, x, y));
+      return;
+    }
+    *sample = pixels::bayerColour(format_, x, y) == model_.signal;
+    *s = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.signal));
+    *r = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.reference));
+    *t = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.third));
+    return;
+  }
+  int rgb[3];
+  pixels::decodeCell(m, format_, x, y, rgb);
+  *clipped = rgb[0] >= saturation_ || rgb[1] >= saturation_ || rgb[2] >= saturation_;
+  if (!model_.colour)
+  {
+    *s = 0.25f * static_cast<float>(rgb[0] + 2 * rgb[1] + rgb[2]);
+    return;
+  }
+  *s = static_cast<float>(rgb[model_.signal]);
+  *r = static_cast<float>(rgb[model_.reference]);
+  *t = static_cast<float>(rgb[model_.third]);
+}
+
+namespace
+{
+// The fast path of fillWindow for interleaved 8-bit colour frames (the
+// common case): the planes straight from the rows.
+void fillInterleaved(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
+                     PlaneWindow* w, float* s, float* r, float* t, bool ambient)
+{
+  const pixels::Interleaved L = pixels::interleavedLayout(format);
+  const int offset[3] = {L.r, L.g, L.b};
+  const int so = offset[model.signal], ro = offset[model.reference], to = offset[model.third];
+  const int H = w->H;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const uint8_t* px = m.ptr<uint8_t>(cy + dy) + (cx - H) * L.bytes;
+    const int row = w->index(-H, dy);
+    for (int k = 0; k <= 2 * H; ++k, px += L.bytes)
+    {
+      s[row + k] = px[so];
+      r[row + k] = px[ro];
+      t[row + k] = px[to];
+      const bool clipped = px[0] >= saturation || px[1] >= saturation || px[2] >= saturation;
+      if (ambient)
+        w->flags[row + k] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[row + k] = static_cast<uint8_t>(PlaneWindow::kSample | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
+// The fast path for mono frames: the one plane, straight from the rows.
+template <typename T>
+void fillMono(const cv::Mat& m, int saturation, double scale, int cx, int cy, PlaneWindow* w, float* s, bool ambient)
+{
+  const int H = w->H;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const T* px = m.ptr<T>(cy + dy) + (cx - H);
+    const int row = w->index(-H, dy);
+    for (int k = 0; k <= 2 * H; ++k)
+    {
+      s[row + k] = static_cast<float>(px[k] * scale);
+      const bool clipped = px[k] >= saturation;
+      if (ambient)
+        w->flags[row + k] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[row + k] = static_cast<uint8_t>(PlaneWindow::kSample | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
+// The fast path for Bayer mosaics, colour path: the clipped raw samples of
+// the window and its one-pixel border marked once, each pixel's planes from
+// its own and its neighbours' samples.
+void fillBayer(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
+               PlaneWindow* w, float* s, float* r, float* t, bool ambient)
+{
+  const int H = w->H, n = 2 * H + 3;
+  bool raw_clipped[(2 * PlaneWindow::kMaxRadius + 3) * (2 * PlaneWindow::kMaxRadius + 3)];
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x)
+      raw_clipped[y * n + x] = pixels::bayerRaw(m, cx - H - 1 + x, cy - H - 1 + y) >= saturation;
+  for (int dy = -H; dy <= H; ++dy)
+    for (int dx = -H; dx <= H; ++dx)
+    {
+      const int i = w->index(dx, dy), x = cx + dx, y = cy + dy;
+      bool clipped = false;
+      for (int ey = 0; ey < 3 && !clipped; ++ey)
+        for (int ex = 0; ex < 3; ++ex)
+          clipped = clipped || raw_clipped[(dy + H + ey) * n + dx + H + ex];
+      s[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.signal));
+      r[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.reference));
+      t[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.third));
+      const bool sample = pixels::bayerColour(format, x, y) == model.signal;
+      if (ambient)
+        w->flags[i] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[i] = static_cast<uint8_t>((sample ? PlaneWindow::kSample : 0) | (clipped ? PlaneWindow::kClipped : 0));
+    }
+}
+
+bool isInterleaved(PixelFormat format)
+{
+  return format == PixelFormat::kBgr8 || format == PixelFormat::kRgb8 || format == PixelFormat::kBgra8 ||
+         format == PixelFormat::kRgba8;
+}
+}  // namespace
+
+void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
+{
+  w->cx = cx;
+  w->cy = cy;
+  w->H = H;
+  w->stride = (2 * H + 1 + 3) & ~3;
+  w->colour = model_.colour;
+  w->ambient = !ambient_.empty();
+  w->ring = isBayer(format_) ? 2 : 1;
+  if (model_.colour && isInterleaved(format_))
+  {
+    fillInterleaved(image_, format_, model_, saturation_, cx, cy, w, w->signal, w->reference, w->third, false);
+    if (w->ambient)
+      fillInterleaved(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
+                      w->ambient_third, true);
+    return;
+  }
+  if (model_.colour && isBayer(format_))
+  {
+    fillBayer(image_, format_, model_, saturation_, cx, cy, w, w->signal, w->reference, w->third, false);
+    if (w->ambient)
+      fillBayer(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
+                w->ambient_third, true);
+    return;
+  }
+  if (format_ == PixelFormat::kMono8 || format_ == PixelFormat::kMono16)
+  {
+    const bool wide = format_ == PixelFormat::kMono16;
+    for (int pass = 0; pass < (w->ambient ? 2 : 1); ++pass)
+    {
+      const cv::Mat& m = pass ? ambient_ : image_;
+      float* s = pass ? w->ambient_signal : w->signal;
+      if (wide)
+        fillMono<uint16_t>(m, saturation_, 1.0 / 257.0, cx, cy, w, s, pass == 1);
+      else
+        fillMono<uint8_t>(m, saturation_, 1.0, cx, cy, w, s, pass == 1);
+    }
+    return;
+  }
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    for (int dx = -H; dx <= H; ++dx)
+    {
+      const int i = w->index(dx, dy);
+      bool sample, clipped;
+      fillPixel(image_, cx + dx, cy + dy, &w->signal[i], &w->reference[i], &w->third[i], &sample, &clipped);
+      if (w->ambient)
+      {
+        bool ambient_sample, ambient_clipped;
+        fillPixel(ambient_, cx + dx, cy + dy, &w->ambient_signal[i], &w->ambient_reference[i], &w->ambient_third[i],
+                  &ambient_sample, &ambient_clipped);
+        clipped = clipped || ambient_clipped;
+      }
+      w->flags[i] = static_cast<uint8_t>((sample ? PlaneWindow::kSample : 0) | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
+}  // namespace fast_detector
+}  // namespace structured_light_stabilizer

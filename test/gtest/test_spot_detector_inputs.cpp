@@ -1,0 +1,297 @@
+// SpotDetector (fast method) on every input kind of issue #16: the
+// simulator's frames rendered in each sensor output and projector colour
+// (Bayer patterns, mono8/mono16 NIR, red and blue projectors, rgb8, white),
+// the independent generator's frames in the encodings the simulator does not
+// render (yuv422 UYVY and YUYV, bgra8), the SIMD row passes against their
+// scalar tails, and bad input.
+//
+// Seeds: rock seeds 3400+ (simulator) and 6000+ (generator), not used for
+// tuning (docs/testing.md). The rock is weakly textured (10 cm features):
+// these tests are about reading each input; the texture's physics is in
+// test_spot_detector_physics and test_spot_detector_sim.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "structured_light_stabilizer/sim/simulator.h"
+#include "structured_light_stabilizer/spot_detector.h"
+#include "support/spot_score.h"
+#include "support/synthetic_dots.h"
+
+using namespace structured_light_stabilizer;
+using structured_light_stabilizer::test::Score;
+
+namespace
+{
+struct Kind
+{
+  const char* name;
+  const char* encoding;
+  ProjectorColor color;
+  double sun;
+  double max_rms_px;  // the issue's 0.10 px, unless said otherwise
+};
+
+void print(const std::string& what, const Score& s, double worst)
+{
+  std::printf("[ MEASURE ] %-44s RMS %.4f px, recall %6.2f %% (%d/%d), worst frame %6.2f %%, false/frame %.2f\n",
+              what.c_str(), s.rms(), 100.0 * s.recall(), s.matched, s.truth, 100.0 * worst, s.falsePerFrame());
+}
+
+Score simulatorKind(const Kind& k, int frames, uint32_t seed, double* worst)
+{
+  SpotDetectorParams p;
+  p.projector_color = k.color;
+  SpotDetector det(p);
+  Score pooled;
+  *worst = 1.0;
+  for (int f = 0; f < frames; ++f)
+  {
+    SimulatorParams cfg;
+    EXPECT_TRUE(sensorOutputFromEncoding(k.encoding, &cfg.sensor.output));
+    cfg.projector.color = k.color;
+    cfg.projector.wavelength_nm = nominalWavelengthNm(k.color);
+    cfg.lighting.sun_level = k.sun;
+    cfg.rock.texture_scale_m = 0.1;
+    cfg.rock.seed = seed + f;
+    cfg.noise_seed = 7 * (seed + f) + 1;
+    const Simulator sim(cfg);
+    const SimFrame frame = sim.render(0.0);
+    PixelFormat format;
+    EXPECT_TRUE(pixelFormatFromEncoding(frame.encoding, &format)) << frame.encoding;
+    std::vector<cv::Point2d> truth;
+    for (size_t b = 0; b < frame.visible.size(); ++b)
+      if (frame.visible[b])
+        truth.push_back(frame.pixels[b]);
+    const SpotDetectionResult r = det.detect(frame.image, format);
+    EXPECT_TRUE(r.ok) << r.error;
+    const Score s = test::score(r.spots, truth);
+    pooled.add(s);
+    *worst = std::min(*worst, s.recall());
+  }
+  return pooled;
+}
+}  // namespace
+
+// The input kinds of issue #16's acceptance (Bayer RGGB, mono8 NIR, red
+// projector on a colour camera, rgb8) and the others the package accepts,
+// each on simulator frames rendered in that output: recall >= 99 %, centroid
+// <= 0.10 px.
+TEST(SpotDetectorInputs, SimulatorInputKinds)
+{
+  const Kind kinds[] = {
+      {"rgb8, green", "rgb8", ProjectorColor::kGreen, 0.5, 0.10},
+      {"bayer_rggb8, green", "bayer_rggb8", ProjectorColor::kGreen, 0.5, 0.10},
+      {"bayer_bggr8, green", "bayer_bggr8", ProjectorColor::kGreen, 0.5, 0.10},
+      {"bayer_gbrg8, green", "bayer_gbrg8", ProjectorColor::kGreen, 0.5, 0.10},
+      {"bayer_grbg8, green", "bayer_grbg8", ProjectorColor::kGreen, 0.5, 0.10},
+      {"bgr8, red projector", "bgr8", ProjectorColor::kRed, 0.5, 0.10},
+      {"bgr8, blue projector", "bgr8", ProjectorColor::kBlue, 0.5, 0.10},
+      {"mono8, NIR projector, by day", "mono8", ProjectorColor::kNir, 0.5, 0.10},
+      {"mono8, NIR projector, by night", "mono8", ProjectorColor::kNir, 0.0, 0.10},
+      {"mono16, NIR projector, by day", "mono16", ProjectorColor::kNir, 0.5, 0.10},
+      // White light is found by intensity on a colour camera too: the sunlit
+      // texture under the dot stays (no colour tells the two apart).
+      {"bgr8, white projector", "bgr8", ProjectorColor::kWhite, 0.5, 0.12},
+      // Red dots on red rock through the red quarter of a mosaic: the
+      // reference (green) is interpolated and scaled by the rock's r/g of
+      // about 1.8, which carries its noise into the centroid.
+      {"bayer_rggb8, red projector", "bayer_rggb8", ProjectorColor::kRed, 0.5, 0.14},
+  };
+  uint32_t seed = 3400;
+  for (const Kind& k : kinds)
+  {
+    double worst = 0;
+    const Score s = simulatorKind(k, 2, seed, &worst);
+    seed += 10;
+    print(k.name, s, worst);
+    EXPECT_GE(s.recall(), 0.99) << k.name;
+    EXPECT_GE(worst, 0.98) << k.name;
+    EXPECT_LE(s.rms(), k.max_rms_px) << k.name;
+  }
+}
+
+// Encodings the simulator does not render, on the independent generator's
+// frames: each must do as well as the bgr8 frame of the same scene (yuv422
+// halves the chroma resolution).
+TEST(SpotDetectorInputs, GeneratorEncodings)
+{
+  const synthetic_dots::Output outputs[] = {synthetic_dots::Output::kBgr8,       synthetic_dots::Output::kUyvy,
+                                            synthetic_dots::Output::kYuyv,       synthetic_dots::Output::kBayerRggb8,
+                                            synthetic_dots::Output::kBayerGrbg8, synthetic_dots::Output::kRgb8};
+  SpotDetector det;
+  for (const synthetic_dots::Output out : outputs)
+  {
+    Score pooled;
+    double worst = 1.0;
+    std::string encoding;
+    for (unsigned seed = 6000; seed < 6003; ++seed)
+    {
+      synthetic_dots::Config cfg;
+      cfg.width = cfg.height = 512;
+      cfg.sun = 0.5;
+      cfg.texture_px = 70.0;
+      cfg.dot_to_sun_ratio = 1.5;
+      cfg.output = out;
+      cfg.seed = seed;
+      const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+      encoding = f.encoding;
+      PixelFormat format;
+      ASSERT_TRUE(pixelFormatFromEncoding(f.encoding, &format)) << f.encoding;
+      const SpotDetectionResult r = det.detect(f.image, format);
+      ASSERT_TRUE(r.ok) << r.error;
+      const Score s = test::score(r.spots, f.dots);
+      pooled.add(s);
+      worst = std::min(worst, s.recall());
+    }
+    print("generator, " + encoding, pooled, worst);
+    EXPECT_GE(pooled.recall(), 0.99) << encoding;
+    EXPECT_GE(worst, 0.98) << encoding;
+    EXPECT_LE(pooled.rms(), 0.10) << encoding;
+  }
+}
+
+namespace
+{
+// The detected spot nearest to each true dot (within 1 px), or NaN.
+std::vector<cv::Point2d> nearestToTruth(const Spots& spots, const std::vector<cv::Point2d>& truth, double dx)
+{
+  std::vector<cv::Point2d> out;
+  for (const cv::Point2d& t : truth)
+  {
+    cv::Point2d best(NAN, NAN);
+    double d_best = 1.0;
+    for (const Spot& s : spots)
+    {
+      const double d = std::hypot(s.x - dx - t.x, s.y - t.y);
+      if (d < d_best)
+      {
+        d_best = d;
+        best = cv::Point2d(s.x - dx, s.y);
+      }
+    }
+    out.push_back(best);
+  }
+  return out;
+}
+}  // namespace
+
+// The SIMD row passes handle 16 cells at a time and the rest in a scalar
+// tail: the same scene shifted by 1-15 columns (2-14 on a mosaic, which keeps
+// the pattern) puts every dot through both; every dot must follow the shift
+// exactly (the intensity path's 16 x 16 background blocks do not shift with
+// the scene, so its candidates start elsewhere: the same dot within the
+// refinement's convergence; by night, as sunlit texture under a mono dot
+// leaves the iterated centroid more than one fixed point).
+TEST(SpotDetectorInputs, SimdPassesAgreeWithTheirTails)
+{
+  synthetic_dots::Config cfg;
+  cfg.width = 300;
+  cfg.height = 260;
+  cfg.rows = cfg.cols = 5;
+  cfg.seed = 6100;
+  for (const synthetic_dots::Output out :
+       {synthetic_dots::Output::kBgr8, synthetic_dots::Output::kBayerRggb8, synthetic_dots::Output::kMono8})
+  {
+    const bool mono = out == synthetic_dots::Output::kMono8;
+    cfg.output = out;
+    cfg.projector = mono ? synthetic_dots::Projector::kNir : synthetic_dots::Projector::kGreen;
+    cfg.sun = mono ? 0.0 : 0.3;
+    const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+    PixelFormat format;
+    ASSERT_TRUE(pixelFormatFromEncoding(f.encoding, &format));
+    SpotDetectorParams p;
+    p.projector_color = mono ? ProjectorColor::kNir : ProjectorColor::kGreen;
+    SpotDetector det(p);
+    const std::vector<cv::Point2d> ref = nearestToTruth(det.detect(f.image, format).spots, f.dots, 0.0);
+    const int step = isBayer(format) ? 2 : 1;
+    for (int shift = step; shift < 16; shift += step)
+    {
+      cv::Mat wide(f.image.rows, f.image.cols + shift, f.image.type(), cv::Scalar::all(0));
+      f.image.copyTo(wide(cv::Rect(shift, 0, f.image.cols, f.image.rows)));
+      const std::vector<cv::Point2d> moved = nearestToTruth(det.detect(wide, format).spots, f.dots, shift);
+      for (size_t i = 0; i < ref.size(); ++i)
+      {
+        ASSERT_TRUE(std::isfinite(ref[i].x) && std::isfinite(moved[i].x)) << f.encoding << " dot " << i;
+        EXPECT_NEAR(moved[i].x, ref[i].x, mono ? 2e-3 : 1e-6) << f.encoding << " shift " << shift;
+        EXPECT_NEAR(moved[i].y, ref[i].y, mono ? 2e-3 : 1e-6) << f.encoding << " shift " << shift;
+      }
+    }
+  }
+}
+
+// A mono16 frame is read at its full depth: the same scene as mono8 x 257
+// gives the same spots.
+TEST(SpotDetectorInputs, Mono16IsMono8Scaled)
+{
+  synthetic_dots::Config cfg;
+  cfg.width = cfg.height = 300;
+  cfg.rows = cfg.cols = 5;
+  cfg.sun = 0.0;
+  cfg.output = synthetic_dots::Output::kMono8;
+  cfg.projector = synthetic_dots::Projector::kNir;
+  cfg.seed = 6200;
+  const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+  cv::Mat wide;
+  f.image.convertTo(wide, CV_16U, 257.0);
+  SpotDetectorParams p;
+  p.projector_color = ProjectorColor::kNir;
+  SpotDetector det(p);
+  const Spots a = det.detect(f.image, PixelFormat::kMono8).spots;
+  const Spots b = det.detect(wide, PixelFormat::kMono16).spots;
+  ASSERT_EQ(a.size(), f.dots.size());
+  ASSERT_EQ(b.size(), a.size());
+  for (size_t i = 0; i < a.size(); ++i)
+  {
+    EXPECT_NEAR(a[i].x, b[i].x, 1e-6);
+    EXPECT_NEAR(a[i].y, b[i].y, 1e-6);
+  }
+}
+
+TEST(SpotDetectorInputs, BadInputIsRefusedWithAReason)
+{
+  SpotDetector det;
+  struct Case
+  {
+    cv::Mat image;
+    PixelFormat format;
+    const char* expect;
+  };
+  const Case cases[] = {
+      {cv::Mat(8, 9, CV_8UC2), PixelFormat::kUyvy, "odd width"},
+      {cv::Mat(1, 1, CV_8UC1), PixelFormat::kBayerRggb8, "Bayer"},
+      {cv::Mat(8, 8, CV_8UC1), PixelFormat::kMono16, "16-bit"},
+      {cv::Mat(8, 8, CV_16UC1), PixelFormat::kBayerGbrg8, "8-bit"},
+      {cv::Mat(8, 8, CV_8UC3), PixelFormat::kYuyv, "channels"},
+  };
+  for (const Case& c : cases)
+  {
+    const SpotDetectionResult r = det.detect(c.image, c.format);
+    EXPECT_FALSE(r.ok) << encodingName(c.format);
+    EXPECT_NE(r.error.find(c.expect), std::string::npos) << r.error;
+  }
+  // Every name the nodelet may see maps to a format and back.
+  for (const char* name : {"bgr8", "rgb8", "bgra8", "rgba8", "mono8", "mono16", "bayer_rggb8", "bayer_bggr8",
+                           "bayer_gbrg8", "bayer_grbg8", "yuv422", "yuv422_yuy2"})
+  {
+    PixelFormat f;
+    ASSERT_TRUE(pixelFormatFromEncoding(name, &f)) << name;
+    EXPECT_EQ(std::string(encodingName(f)), name);
+  }
+  PixelFormat f;
+  EXPECT_FALSE(pixelFormatFromEncoding("32FC1", &f));
+  EXPECT_FALSE(pixelFormatFromEncoding("bayer_rggb16", &f));
+  // The smallest Bayer frame, and tiny frames of every format, are read without harm.
+  for (int k = 0; k < 12; ++k)
+  {
+    const PixelFormat format = static_cast<PixelFormat>(k);
+    const cv::Mat tiny(2, 2, matType(format), cv::Scalar::all(200));
+    const SpotDetectionResult r = det.detect(tiny, tiny, format);
+    EXPECT_TRUE(r.ok) << encodingName(format) << ": " << r.error;
+    EXPECT_EQ(toBgr(tiny, format).size(), tiny.size()) << encodingName(format);
+  }
+}
