@@ -10,6 +10,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <vector>
 
 #include <boost/thread/recursive_mutex.hpp>
 #include <cv_bridge/cv_bridge.h>
@@ -24,6 +25,7 @@
 
 #include "structured_light_stabilizer/CentroidArray.h"
 #include "structured_light_stabilizer/SpotDetectorConfig.h"
+#include "structured_light_stabilizer/ambient_compensation.h"
 #include "structured_light_stabilizer/spot_detector.h"
 #include "conversions.h"
 #include "nodelet_base.h"
@@ -161,6 +163,24 @@ cv::Mat imageView(const sensor_msgs::Image& msg, PixelFormat format, cv::Mat* sw
   return *swapped;
 }
 
+// The mosaic of a frame for the ambient compensation.
+AmbientLayout ambientLayout(PixelFormat format)
+{
+  switch (format)
+  {
+    case PixelFormat::kBayerRggb8:
+      return AmbientLayout::kBayerRggb;
+    case PixelFormat::kBayerBggr8:
+      return AmbientLayout::kBayerBggr;
+    case PixelFormat::kBayerGbrg8:
+      return AmbientLayout::kBayerGbrg;
+    case PixelFormat::kBayerGrbg8:
+      return AmbientLayout::kBayerGrbg;
+    default:
+      return AmbientLayout::kInterleaved;
+  }
+}
+
 }  // namespace
 
 class SpotDetectorNodelet : public NodeletBase
@@ -184,11 +204,11 @@ private:
       projector_rows_ = projector_cols_ = 10;
     }
     pnh.param("strobe", strobe_, false);
-    pnh.param("ambient_max_gap_s", ambient_max_gap_s_, 0.1);
+    pnh.param("ambient_max_gap_s", ambient_max_gap_s_, 0.25);
     if (!(ambient_max_gap_s_ > 0.0))
     {
-      NODELET_WARN("SpotDetector: ~ambient_max_gap_s must be > 0 (got %g); using 0.1", ambient_max_gap_s_);
-      ambient_max_gap_s_ = 0.1;
+      NODELET_WARN("SpotDetector: ~ambient_max_gap_s must be > 0 (got %g); using 0.25", ambient_max_gap_s_);
+      ambient_max_gap_s_ = 0.25;
     }
     it_.reset(new image_transport::ImageTransport(nh));
 
@@ -266,45 +286,68 @@ private:
     guarded([&] { process(msg); });
   }
 
-  // The cached projector-off frame nearest to `stamp` (null when none is
-  // within ~ambient_max_gap_s).
-  sensor_msgs::ImageConstPtr nearestAmbient(const ros::Time& stamp)
+  // The cached projector-off frames around `stamp` usable for it: the
+  // nearest one after it (when it has already arrived, e.g. in a replay)
+  // and the nearest ones before it, within ~ambient_max_gap_s of each
+  // other, nearest first.
+  std::vector<sensor_msgs::ImageConstPtr> ambientsAround(const ros::Time& stamp)
   {
     std::lock_guard<std::mutex> lock(connect_mutex_);
+    std::vector<sensor_msgs::ImageConstPtr> out;
     if (!ambient_cache_)
-      return nullptr;
-    sensor_msgs::ImageConstPtr best;
-    for (const sensor_msgs::ImageConstPtr& m :
-         {ambient_cache_->getElemBeforeTime(stamp), ambient_cache_->getElemAfterTime(stamp)})
-      if (m && (!best || std::abs((m->header.stamp - stamp).toSec()) < std::abs((best->header.stamp - stamp).toSec())))
-        best = m;
-    if (best && std::abs((best->header.stamp - stamp).toSec()) > ambient_max_gap_s_)
-      return nullptr;
-    return best;
+      return out;
+    const ros::Duration reach(3.0 * ambient_max_gap_s_);
+    for (const sensor_msgs::ImageConstPtr& m : ambient_cache_->getInterval(stamp - reach, stamp + reach))
+      out.push_back(m);
+    std::sort(out.begin(), out.end(), [&](const sensor_msgs::ImageConstPtr& x, const sensor_msgs::ImageConstPtr& y)
+              { return std::abs((x->header.stamp - stamp).toSec()) < std::abs((y->header.stamp - stamp).toSec()); });
+    if (!out.empty() && std::abs((out.front()->header.stamp - stamp).toSec()) > ambient_max_gap_s_)
+      out.clear();
+    return out;
   }
 
-  // The ambient image for this frame in strobe mode; empty (with a throttled
-  // warning) when there is none fit to use: detection goes on without it.
-  cv::Mat ambientFor(const sensor_msgs::Image& frame, PixelFormat format, cv::Mat* swapped)
+  // Why `amb` cannot serve as the ambient frame of `frame` (empty: it can).
+  std::string ambientMismatch(const sensor_msgs::Image& amb, const sensor_msgs::Image& frame, PixelFormat format)
   {
-    const sensor_msgs::ImageConstPtr amb = nearestAmbient(frame.header.stamp);
-    std::string why;
-    if (!amb)
-      why = "no camera/image_ambient frame within " + std::to_string(ambient_max_gap_s_) + " s of the frame";
-    else if (amb->encoding != frame.encoding || amb->width != frame.width || amb->height != frame.height)
-      why = "camera/image_ambient is " + std::to_string(amb->width) + "x" + std::to_string(amb->height) + " " +
-            amb->encoding + ", the frame " + std::to_string(frame.width) + "x" + std::to_string(frame.height) + " " +
-            frame.encoding;
-    else
-      why = inconsistency(*amb, format);
+    if (amb.encoding != frame.encoding || amb.width != frame.width || amb.height != frame.height)
+      return "camera/image_ambient is " + std::to_string(amb.width) + "x" + std::to_string(amb.height) + " " +
+             amb.encoding + ", the frame " + std::to_string(frame.width) + "x" + std::to_string(frame.height) + " " +
+             frame.encoding;
+    return inconsistency(amb, format);
+  }
+
+  // The ambient image for this frame in strobe mode: two projector-off frames
+  // motion-compensated to the frame's time (compensateAmbient: interpolated
+  // when the one after is already here, else extrapolated from the two
+  // before, with no wait), or the nearest one as it is when compensation is
+  // not possible. Empty (with a throttled warning) when there is none fit to
+  // use: detection goes on without it.
+  cv::Mat ambientFor(const sensor_msgs::Image& frame, PixelFormat format)
+  {
+    std::vector<sensor_msgs::ImageConstPtr> near = ambientsAround(frame.header.stamp);
+    std::string why = near.empty() ? "no camera/image_ambient frame within " + std::to_string(ambient_max_gap_s_) +
+                                         " s of the frame" :
+                                     ambientMismatch(*near.front(), frame, format);
     if (!why.empty())
     {
       ++frames_without_ambient_;
       NODELET_WARN_THROTTLE(5.0, "SpotDetector: strobe mode: %s; detecting without the ambient frame", why.c_str());
       return cv::Mat();
     }
-    ambient_msg_ = amb;  // keeps the buffer alive while the view is used
-    return imageView(*amb, format, swapped);
+    AmbientFrame a{imageView(*near.front(), format, &ambient_swapped_), near.front()->header.stamp.toSec()};
+    AmbientFrame b;
+    if (near.size() > 1 && ambientMismatch(*near[1], frame, format).empty())
+      b = AmbientFrame{imageView(*near[1], format, &ambient_swapped_b_), near[1]->header.stamp.toSec()};
+    AmbientCompensationParams params;
+    params.max_gap_s = 2.0 * ambient_max_gap_s_;
+    params.layout = ambientLayout(format);
+    const AmbientEstimate estimate = compensateAmbient(frame.header.stamp.toSec(), a, b, params);
+    ++(estimate.valid ? frames_compensated_ : frames_nearest_ambient_);
+    if (!estimate.valid)
+      NODELET_DEBUG_THROTTLE(5.0, "SpotDetector: ambient frame not compensated (%s); using the nearest",
+                             estimate.status.c_str());
+    ambient_msg_ = near.front();  // keeps the buffer alive while a view of it is used
+    return estimate.valid ? estimate.image : a.image;
   }
 
   void process(const sensor_msgs::ImageConstPtr& msg)
@@ -336,7 +379,7 @@ private:
       return;
     }
     const cv::Mat image = imageView(*msg, format, &swapped_);
-    const cv::Mat ambient = strobe_ ? ambientFor(*msg, format, &ambient_swapped_) : cv::Mat();
+    const cv::Mat ambient = strobe_ ? ambientFor(*msg, format) : cv::Mat();
     const bool want_debug = pub_debug_.getNumSubscribers() > 0;
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
@@ -413,6 +456,8 @@ private:
     {
       stat.add("frames with an ambient frame", frames_with_ambient_);
       stat.add("frames without one", frames_without_ambient_.load());
+      stat.add("ambient frames motion-compensated", frames_compensated_.load());
+      stat.add("ambient frames used as they are (nearest)", frames_nearest_ambient_.load());
     }
     stat.add("frames dropped (bad input)", framesDropped());
     stat.add("dots in last frame", last_spots_);
@@ -425,7 +470,7 @@ private:
   // Parameters fixed at start-up.
   int projector_rows_ = 10, projector_cols_ = 10;
   bool strobe_ = false;
-  double ambient_max_gap_s_ = 0.1;
+  double ambient_max_gap_s_ = 0.25;
 
   // dynamic_reconfigure: the server holds config_mutex_ while calling
   // configCb(); the frame callback copies params_ under it.
@@ -438,7 +483,7 @@ private:
   // Only the frame callback touches the detector and these buffers (one image queue).
   SpotDetector detector_;
   bool mono_warned_ = false;
-  cv::Mat swapped_, ambient_swapped_;
+  cv::Mat swapped_, ambient_swapped_, ambient_swapped_b_;
   sensor_msgs::ImageConstPtr ambient_msg_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;
@@ -454,6 +499,7 @@ private:
   double last_ms_ = 0.0, mean_ms_ = 0.0;
   int last_spots_ = 0, frames_ = 0, frames_with_ambient_ = 0;
   std::atomic<int> frames_without_ambient_{0};
+  std::atomic<int> frames_compensated_{0}, frames_nearest_ambient_{0};  // how the ambient frame was made
 };
 
 }  // namespace structured_light_stabilizer
