@@ -189,12 +189,31 @@ private:
 
   void infoCb(const sensor_msgs::CameraInfoConstPtr& info)
   {
-    std::lock_guard<std::mutex> lock(state_mutex_);
-    info_ = info;
+    CentroidArrayConstPtr waiting;
+    {
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      info_ = info;
+      waiting.swap(before_first_info_);
+    }
+    if (waiting)
+      spotsCb(waiting);
   }
 
   void spotsCb(const CentroidArrayConstPtr& msg)
   {
+    {
+      // The first spots can beat the first camera_info (a replayed bag, a
+      // slow link): the newest waits for it instead of being dropped.
+      std::lock_guard<std::mutex> lock(state_mutex_);
+      if (!info_)
+      {
+        if (before_first_info_)
+          dropFrame("no camera_info received on " + getNodeHandle().resolveName("camera/camera_info") +
+                    " yet; nothing published");
+        before_first_info_ = msg;
+        return;
+      }
+    }
     guarded([&] { process(msg); });
   }
 
@@ -408,6 +427,7 @@ private:
   ProjectorCalibration calibration_;
   std::string calibration_error_;
   sensor_msgs::CameraInfoConstPtr info_;
+  CentroidArrayConstPtr before_first_info_;  // the newest spots while no camera_info has come
   std::shared_ptr<const Triangulator> triangulator_;
   std::mutex track_mutex_;
   BeamTracker tracker_;  // the tracking prior carried from frame to frame

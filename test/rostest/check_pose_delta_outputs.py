@@ -4,12 +4,12 @@
 Relays sim/ground_truth/points to relayed/points (PoseDelta's input), every
 fourth cloud replaced by an all-NaN cloud of the same header ("sabotaged":
 its estimate cannot be valid). Then:
-  1. without any subscriber to pose_delta or pose_delta/pose, for 10 s: the
+  1. without any subscriber to pose_delta or pose_delta/pose, for 7 s: the
      tf camera_optical_frame -> camera_optical_frame_reference flows (at
      least half of the usable clouds), never for a sabotaged stamp, never
      twice with one stamp;
   2. `rostopic type pose_delta/pose` is geometry_msgs/PoseWithCovarianceStamped;
-  3. subscribed to both pose topics for 10 s: pose_delta/pose and the tf come
+  3. subscribed to both pose topics for 7 s: pose_delta/pose and the tf come
      exactly for the valid pose_delta messages; the pose is the inverse of
      the PoseDelta transform (the current camera in the reference frame,
      frame camera_optical_frame_reference); its covariance is the PoseDelta
@@ -33,6 +33,7 @@ from tf2_msgs.msg import TFMessage
 
 PKG = "structured_light_stabilizer"
 FRAME = "camera_optical_frame"
+PHASE_S = 7.0  # seconds of each phase: 35 frames at 5 Hz
 
 
 def nan_cloud(msg):
@@ -101,11 +102,11 @@ class PoseDeltaOutputs(unittest.TestCase):
                     break
             time.sleep(0.2)
         # 1. tf with no subscriber to a pose topic.
-        tf, good, bad = self.tf_phase(10.0)
+        tf, good, bad = self.tf_phase(PHASE_S)
         stamps = [s for s, _ in tf]
         in_window = [s for s in good if stamps and stamps[0] <= s <= stamps[-1]]
-        print("[ MEASURE ] no pose subscriber: %d tf in 10 s for %d usable clouds in that time; %d sabotaged "
-              "clouds so far" % (len(tf), len(in_window), len(bad)))
+        print("[ MEASURE ] no pose subscriber: %d tf in %.0f s for %d usable clouds in that time; %d sabotaged "
+              "clouds so far" % (len(tf), PHASE_S, len(in_window), len(bad)))
         self.assertGreaterEqual(len(tf), 10, "the tf does not flow without a subscriber to a pose topic")
         self.assertGreaterEqual(len(tf), 0.5 * len(in_window))
         self.assertFalse(set(stamps) & bad, "tf sent for an unusable (invalid) cloud")
@@ -120,7 +121,7 @@ class PoseDeltaOutputs(unittest.TestCase):
         s1 = rospy.Subscriber("pose_delta", PoseDelta, lambda m: deltas.__setitem__(m.header.stamp, m), queue_size=50)
         s2 = rospy.Subscriber("pose_delta/pose", PoseWithCovarianceStamped,
                               lambda m: poses.__setitem__(m.header.stamp, m), queue_size=50)
-        tf, good, bad = self.tf_phase(10.0)
+        tf, good, bad = self.tf_phase(PHASE_S)
         s1.unregister()
         s2.unregister()
         time.sleep(0.5)
