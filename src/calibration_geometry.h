@@ -42,16 +42,17 @@ inline Eigen::Vector2d toVec(const cv::Point2d& p)
 }
 
 // Where the line o + s d meets the board plane of `pose` (its z = 0 plane),
-// in the camera frame; false when parallel or behind the line's origin.
+// in the camera frame; false when parallel or, with `forward_only`, behind
+// the line's origin (s <= 0).
 inline bool linePlaneHit(const Eigen::Isometry3d& pose, const Eigen::Vector3d& o, const Eigen::Vector3d& d,
-                         Eigen::Vector3d* hit)
+                         Eigen::Vector3d* hit, bool forward_only = true)
 {
   const Eigen::Vector3d n = pose.linear().col(2);
   const double denom = n.dot(d);
   if (std::abs(denom) < 1e-12)
     return false;
   const double s = n.dot(pose.translation() - o) / denom;
-  if (!(s > 0.0))
+  if (forward_only && !(s > 0.0))
     return false;
   *hit = o + s * d;
   return true;
