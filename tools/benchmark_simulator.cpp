@@ -54,6 +54,19 @@ int main(int argc, char** argv)
     c.config.clutter.green_blobs = 10;
     cases.push_back(c);
   }
+  {
+    // The options of docs/simulator.md that cost time when on: a Bayer
+    // mosaic, column blooming of bright dots, 10 ms of motion blur.
+    Case c{"bayer_blooming_motion_blur", SimulatorParams()};
+    c.config.sensor.output = structured_light_stabilizer::SensorOutput::kBayerRggb8;
+    c.config.sensor.blooming = structured_light_stabilizer::Blooming::kColumn;
+    c.config.projector.power_scale = 3.0;
+    c.config.sensor.exposure_time_s = 0.010;
+    c.config.motion.jitter_translation_m = 0.003;
+    c.config.motion.jitter_rotation_rad = 0.002;
+    c.config.motion.drift_velocity_mps = Eigen::Vector3d(0.2, 0.0, 0.5);
+    cases.push_back(c);
+  }
   for (int threads : {1, default_threads})
   {
     cv::setNumThreads(threads);

@@ -8,6 +8,7 @@
 // simulator"); lighting, noise and jitter are live (cfg/CameraDriver.cfg).
 // Simulated time advances by 1 / ~rate per frame, deterministically, also
 // across rate changes and while ~lazy skips the rendering.
+#include <functional>
 #include <mutex>
 #include <utility>
 #include <vector>
@@ -60,6 +61,9 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
       {"rock_tilt_x", &c->rock.tilt_x_rad},
       {"rock_tilt_y", &c->rock.tilt_y_rad},
       {"texture_scale", &c->rock.texture_scale_m},
+      {"fine_texture_period", &c->rock.fine_texture_period_m},
+      {"fine_texture_amplitude", &c->rock.fine_texture_amplitude},
+      {"nir_to_red", &c->rock.nir_to_red_ratio},
       {"albedo_min", &c->rock.albedo_min},
       {"albedo_max", &c->rock.albedo_max},
       {"rock_step_height", &c->rock.step_height_m},
@@ -100,6 +104,58 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
     c->sensor.camera.distortion = DistortionModel::kPlumbBob;
     c->sensor.camera.D = D;
   }
+}
+
+// The projector's colour and the sensor's output (docs/simulator.md,
+// "Colours and sensor outputs"): ~projector_color (green | red | blue | nir |
+// white; its nominal wavelength unless ~projector_wavelength), ~sensor_output
+// (an image encoding), ~blooming (none | column), ~full_well (DN), and the
+// motion blur's ~exposure_time (s, 0 = off) and ~exposure_samples.
+void readColourAndSensorParams(const ros::NodeHandle& pnh, const ParamReader& read,
+                               const std::function<void(const std::string&)>& error, SimulatorParams* c)
+{
+  const std::string color = pnh.param<std::string>("projector_color", "green");
+  if (!projectorColorFromName(color, &c->projector.color))
+    error("unknown ~projector_color '" + color + "' (green | red | blue | nir | white); using 'green'");
+  c->projector.wavelength_nm = nominalWavelengthNm(c->projector.color);
+  read.number("projector_wavelength", &c->projector.wavelength_nm);
+  const std::string output = pnh.param<std::string>("sensor_output", "bgr8");
+  if (!sensorOutputFromEncoding(output, &c->sensor.output))
+    error("unknown ~sensor_output '" + output +
+          "' (bgr8 | rgb8 | mono8 | mono16 | bayer_rggb8 | bayer_bggr8 | bayer_gbrg8 | bayer_grbg8); using 'bgr8'");
+  const std::string blooming = pnh.param<std::string>("blooming", "none");
+  if (blooming == "column")
+    c->sensor.blooming = Blooming::kColumn;
+  else if (blooming != "none")
+    error("unknown ~blooming '" + blooming + "' (none | column); using 'none'");
+  read.number("full_well", &c->sensor.full_well_dn);
+  read.number("exposure_time", &c->sensor.exposure_time_s);
+  read.integer("exposure_samples", &c->sensor.exposure_samples);
+}
+
+// The named (string) scene settings and the chessboard target: ~target
+// (rock | chessboard) and its ~board_* keys. An unknown name is an error
+// naming the choices, and the default stays.
+void readNamedSceneParams(const ros::NodeHandle& pnh, const ParamReader& read,
+                          const std::function<void(const std::string&)>& error, SimulatorParams* c)
+{
+  readColourAndSensorParams(pnh, read, error, c);
+  const std::string target = pnh.param<std::string>("target", "rock");
+  if (target == "chessboard")
+    c->target.kind = TargetKind::kChessboard;
+  else if (target != "rock")
+    error("unknown ~target '" + target + "' (rock | chessboard); using 'rock'");
+  ChessboardParams& b = c->target.chessboard;
+  read.integer("board_cols", &b.cols);
+  read.integer("board_rows", &b.rows);
+  const std::pair<const char*, double*> numbers[] = {
+      {"board_square", &b.square_m},       {"board_margin", &b.margin_m},     {"board_black", &b.black},
+      {"board_white", &b.white},           {"board_distance", &b.distance_m}, {"board_tilt_x", &b.tilt_x_rad},
+      {"board_tilt_y", &b.tilt_y_rad},     {"board_roll", &b.roll_rad},       {"board_offset_x", &b.offset_m.x()},
+      {"board_offset_y", &b.offset_m.y()},
+  };
+  for (const auto& p : numbers)
+    read.number(p.first, p.second);
 }
 
 // ---- dynamic_reconfigure <-> the simulator's live settings, one function each way.
@@ -143,6 +199,7 @@ public:
   {
     SimulatorParams c;
     readSceneParams(ParamReader(ctx_.pnh, ctx_.error), &c);
+    readNamedSceneParams(ctx_.pnh, ParamReader(ctx_.pnh, ctx_.error), ctx_.error, &c);
     const std::string ratio_source = readLighting(&c);
     duration_s_ = ctx_.pnh.param("duration", 0.0);
     useUrlCalibration(&c);
@@ -190,6 +247,7 @@ public:
     rendered_ = rendered_by_->render(t);
     frame->processing_ms = millisecondsSince(t0);
     frame->image = rendered_.image;
+    frame->encoding = rendered_.encoding;
     return {GrabStatus::kFrame, ""};
   }
 

@@ -5,7 +5,9 @@
 
 #include <Eigen/LU>
 
+#include "brightness.h"
 #include "optics.h"
+#include "spectral.h"
 #include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
@@ -18,16 +20,6 @@ namespace
 
 using detail::kNaN;
 using detail::kPi;
-
-// dot_to_sun_ratio refers to a beam of this divergence hitting the rock at
-// this distance at normal incidence; a narrower beam concentrates the same
-// power on a smaller footprint.
-constexpr double kRefBeamSigmaRad = LightingParams::kReferenceBeamSigmaRad;
-constexpr double kRefDistanceM = LightingParams::kReferenceDistanceM;
-
-// Relative response of the B, G, R pixels of a Bayer sensor to 520 nm light:
-// mostly green, with the usual cross-talk into blue and a little into red.
-constexpr double kDotResponseBgr[3] = {0.22, 1.0, 0.08};
 
 // Where a beam meets the rock, seen from the camera.
 struct DotHit
@@ -60,26 +52,52 @@ bool castBeam(const BeamRay& beam, const RockSurface& rock, const FrameGeometry&
 
 // Footprint of the beam in the image for unit sigma * distance: its
 // cross-section (isotropic about the beam) pushed along the beam onto the
-// tangent plane, then through the projection. *cos_i: cosine of the incidence.
-Eigen::Matrix2d unitFootprint(const BeamRay& beam, const RockSurface& rock, const FrameGeometry& g,
-                              const CameraModel& cam, const DotHit& hit, double* cos_i)
+// tangent plane (normal n, camera frame), then through the projection
+// (Jacobian J). *cos_i: cosine of the incidence.
+Eigen::Matrix2d unitFootprint(const BeamRay& beam, const Eigen::Vector3d& n, const Eigen::Matrix<double, 2, 3>& J,
+                              double* cos_i)
 {
-  const Eigen::Vector3d n = g.T_cr.linear() * rock.normal(hit.X_rock.x(), hit.X_rock.y());
   const Eigen::Vector3d bd = beam.direction;
   *cos_i = std::max(0.02, -n.dot(bd));
   const Eigen::Matrix3d M = Eigen::Matrix3d::Identity() - bd * n.transpose() / n.dot(bd);
   const Eigen::Matrix3d C = M * (Eigen::Matrix3d::Identity() - bd * bd.transpose()) * M.transpose();
-  const Eigen::Matrix<double, 2, 3> J = projectionJacobian(cam, hit.X);
   return J * C * J.transpose();
+}
+
+// The per-pixel albedo of a dot (splat.h, DotAlbedo): image offsets mapped to
+// the tangent plane of the hit point (normal n, camera frame) and on to rock
+// (x, y); A: the beam's footprint, S: the whole dot (px^2).
+DotAlbedo dotAlbedo(const FrameGeometry& g, const DotHit& hit, const Eigen::Vector3d& n,
+                    const Eigen::Matrix<double, 2, 3>& J, const Eigen::Matrix2d& A, const Eigen::Matrix2d& S)
+{
+  DotAlbedo da;
+  da.x0 = hit.X_rock.x();
+  da.y0 = hit.X_rock.y();
+  Eigen::Matrix<double, 3, 2> T;
+  T.col(0) = n.unitOrthogonal();
+  T.col(1) = n.cross(T.col(0));
+  const Eigen::Matrix2d JT = J * T;
+  if (!(std::abs(JT.determinant()) > 1e-12))
+    return da;                                                      // seen edge-on: the reflectance of the hit point
+  const Eigen::Matrix2d L = (g.R * T * JT.inverse()).topRows<2>();  // image px -> rock (x, y)
+  const Eigen::Matrix2d Si = S.inverse();
+  const Eigen::Matrix2d K = L * A * Si;
+  const Eigen::Matrix2d blur = L * (A - A * Si * A) * L.transpose();
+  da.K[0] = K(0, 0);
+  da.K[1] = K(0, 1);
+  da.K[2] = K(1, 0);
+  da.K[3] = K(1, 1);
+  da.blur_x = std::sqrt(std::max(0.0, blur(0, 0)));
+  da.blur_y = std::sqrt(std::max(0.0, blur(1, 1)));
+  return da;
 }
 
 }  // namespace
 
 void renderDots(const SimulatorParams& params, const ProjectorCalibration& projector, const RockSurface& rock,
-                const FrameGeometry& g, SimFrame* frame, std::vector<Splat>* splats)
+                const FrameGeometry& g, SimFrame* frame, std::vector<Splat>* splats, std::vector<DotAlbedo>* albedo)
 {
   const SensorParams& sc = params.sensor;
-  const LightingParams& light = params.lighting;
   const CameraModel& cam = sc.camera;
   const int nb = projector.beamCount();
   frame->points.assign(nb, Eigen::Vector3d::Constant(kNaN));
@@ -88,9 +106,8 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
   frame->visible.assign(nb, 0);
   frame->peak_dn.assign(nb, 0.0);
   const double sigma_diff_px = diffractionSigmaPx(sc, params.projector.wavelength_nm);
-  const double dot_gain = light.dot_to_sun_ratio * LightingParams::kSunFullScaleDn * light.exposure *
-                          params.projector.power_scale * kRefDistanceM * kRefDistanceM * kRefBeamSigmaRad *
-                          kRefBeamSigmaRad;
+  const double dot_gain = dotGain(params);
+  const CameraSpectrum spectrum = cameraSpectrum(params.projector.color, sc.output);
   for (int b = 0; b < nb; ++b)
   {
     const BeamRay& beam = projector.beams[b];
@@ -102,29 +119,38 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
     frame->visible[b] = 1;
 
     double cos_i;
-    const Eigen::Matrix2d G = unitFootprint(beam, rock, g, cam, hit, &cos_i);
+    const Eigen::Vector3d n = g.T_cr.linear() * rock.normal(hit.X_rock.x(), hit.X_rock.y());
+    const Eigen::Matrix<double, 2, 3> J = projectionJacobian(cam, hit.X);
+    const Eigen::Matrix2d G = unitFootprint(beam, n, J, &cos_i);
     const double sigma_beam = params.projector.beam_sigma_rad * hit.s;
     const double z_blur = defocusSigmaPx(sc, hit.X.z());
+    const Eigen::Matrix2d A = sigma_beam * sigma_beam * G;
     const Eigen::Matrix2d S =
-        sigma_beam * sigma_beam * G +
-        (z_blur * z_blur + sigma_diff_px * sigma_diff_px + kPixelBoxVariance) * Eigen::Matrix2d::Identity();
-    // Energy of the dot in the image: peak radiance (ratio * sunlit * cos_i *
-    // (d_ref/d)^2 * (sigma_ref/sigma)^2) times the footprint area 2 pi
-    // sqrt(det(sigma^2 d^2 G)); the beam's sigma and distance cancel.
-    float refl[3];
-    rock.lookup3(rock.refl, hit.X_rock.x(), hit.X_rock.y(), refl);
+        A + (z_blur * z_blur + sigma_diff_px * sigma_diff_px + kPixelBoxVariance) * Eigen::Matrix2d::Identity();
+    // Energy of the dot in the image per unit reflectance: peak irradiance
+    // (ratio * sun * cos_i * (d_ref/d)^2 * (sigma_ref/sigma)^2) times the
+    // footprint area 2 pi sqrt(det(sigma^2 d^2 G)); the beam's sigma and
+    // distance cancel. The reflectance comes per pixel (DotAlbedo).
     const double energy =
-        dot_gain * refl[1] * cos_i * 2.0 * kPi * std::sqrt(std::max(0.0, G.determinant())) * vignetting(sc, hit.X);
-    const double peak = energy / (2.0 * kPi * std::sqrt(S.determinant()));
-    frame->peak_dn[b] = peak;
+        dot_gain * cos_i * 2.0 * kPi * std::sqrt(std::max(0.0, G.determinant())) * vignetting(sc, hit.X);
+    const double amplitude = energy / (2.0 * kPi * std::sqrt(S.determinant()));
+    DotAlbedo da = dotAlbedo(g, hit, n, J, A, S);
+    std::copy(&spectrum.dot_mix[0][0], &spectrum.dot_mix[0][0] + 12, &da.mix[0][0]);
+    da.g_lookup = std::min(1e-3, 0.02 / std::max(amplitude, 1e-9));
+    da.factors(rock, 0.0, 0.0, da.f0);
+    frame->peak_dn[b] = amplitude * da.f0[spectrum.primary];
     frame->blur_sigma_px[b] = std::sqrt(0.5 * S.trace());
     Splat sp;
     sp.cx = hit.pixel.x;
     sp.cy = hit.pixel.y;
     for (int c = 0; c < 3; ++c)
-      sp.value[c] = static_cast<float>(peak * kDotResponseBgr[c]);
-    if (peak > 0.0 && setSplatShape(&sp, S, 50.0, cam.height))  // exp(-25): below any DN
+      sp.value[c] = static_cast<float>(amplitude);
+    sp.albedo = static_cast<int>(albedo->size());
+    if (amplitude > 0.0 && setSplatShape(&sp, S, 50.0, cam.height))  // exp(-25): below any DN
+    {
       splats->push_back(sp);
+      albedo->push_back(da);
+    }
   }
 }
 

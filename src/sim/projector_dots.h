@@ -19,9 +19,10 @@ namespace sim
 
 // Fills frame's per-beam ground truth (points, pixels, blur_sigma_px,
 // visible, peak_dn; NaN / 0 for beams that miss or are hidden) and appends
-// the splat of every visible dot.
+// the splat of every visible dot, with its per-pixel albedo (the splat's
+// albedo indexes `albedo`, where it is appended).
 void renderDots(const SimulatorParams& params, const ProjectorCalibration& projector, const RockSurface& rock,
-                const FrameGeometry& g, SimFrame* frame, std::vector<Splat>* splats);
+                const FrameGeometry& g, SimFrame* frame, std::vector<Splat>* splats, std::vector<DotAlbedo>* albedo);
 
 }  // namespace sim
 }  // namespace structured_light_stabilizer

@@ -11,6 +11,7 @@
 #include <opencv2/core.hpp>
 
 #include "structured_light_stabilizer/detail/math.h"
+#include "target_board.h"
 
 namespace structured_light_stabilizer
 {
@@ -19,9 +20,6 @@ namespace sim
 
 namespace
 {
-
-// Reflectance of the terrain behind the rock (B, G, R), lit like the rock.
-constexpr double kBackgroundBgr[3] = {0.015, 0.025, 0.045};
 
 // Coarse lattice of robust casts, every kCoarseStep samples.
 constexpr int kCoarseStep = 8;
@@ -469,15 +467,18 @@ void RockSampling::upsampleRow(const float* __restrict samples, int v, int width
   }
 }
 
-const float* renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const CameraModel& cam,
-                               const FrameGeometry& g, double sun, bool vignetting)
+const float* renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const SensorParams& sensor,
+                               const FrameGeometry& g, double sun)
 {
   static thread_local std::vector<float> buffer;
   buffer.resize(sampling.stride() * sampling.rh);
   // A plain pointer: inside the parallel body, `buffer` would name the
   // worker thread's own (empty) instance.
   float* const rows = buffer.data();
-  RockSampleRenderer(rock, sampling, cam, g, sun, vignetting).render(rows);
+  if (rock.board)
+    renderBoardSamples(rock, sampling, sensor, g, sun, rows);
+  else
+    RockSampleRenderer(rock, sampling, sensor.camera, g, sun, sensor.natural_vignetting).render(rows);
   return rows;
 }
 

@@ -16,6 +16,9 @@ namespace structured_light_stabilizer
 namespace sim
 {
 
+// Reflectance of the terrain behind the rock (B, G, R), lit like the rock.
+constexpr double kBackgroundBgr[3] = {0.015, 0.025, 0.045};
+
 // Rock sample lattice: sample (i, j) is the ray through pixel
 // (sub * i + (sub - 1) / 2, sub * j + (sub - 1) / 2). Built once per Simulator.
 struct RockSampling
@@ -42,9 +45,10 @@ struct RockSampling
 // one instant. sun: DN of a white surface facing the sun (exposure included),
 // > 0. The result is in a buffer kept per calling thread between frames (a
 // fresh 3 MB buffer per frame costs its page faults): valid until that
-// thread's next call.
-const float* renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const CameraModel& cam,
-                               const FrameGeometry& g, double sun, bool vignetting);
+// thread's next call. A chessboard target (rock.board) is rendered by
+// target_board.h instead.
+const float* renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const SensorParams& sensor,
+                               const FrameGeometry& g, double sun);
 
 }  // namespace sim
 }  // namespace structured_light_stabilizer

@@ -1,6 +1,7 @@
 #include "rock_surface.h"
 
 #include "noise.h"
+#include "target_board.h"
 
 namespace structured_light_stabilizer
 {
@@ -13,7 +14,10 @@ RockSurface::RockSurface(const RockParams& rc, const LightingParams& lighting)
   half_h = 0.5 * rc.height_m;
   // Cells of a fifth of the finest texture feature, within [2, 5] mm, then
   // stretched so that a whole number of them spans the rock.
-  cell = std::min(std::max(rc.texture_scale_m / 5.0, 0.002), 0.005);
+  double finest = rc.texture_scale_m / 5.0;
+  if (rc.fine_texture_period_m > 0.0)
+    finest = std::min(finest, rc.fine_texture_period_m / 8.0);  // its octaves of period / 2 and / 4
+  cell = std::min(std::max(finest, 0.002), 0.005);
   nx = std::max(2, static_cast<int>(std::ceil(rc.width_m / cell)));
   ny = std::max(2, static_cast<int>(std::ceil(rc.height_m / cell)));
   cell = std::max(rc.width_m / nx, rc.height_m / ny);
@@ -32,6 +36,7 @@ RockSurface::RockSurface(const RockParams& rc, const LightingParams& lighting)
   computeBlockBounds();
   sun_dir = lighting.sun_direction.normalized();
   sky = lighting.sky_ambient;
+  nir_to_red = static_cast<float>(rc.nir_to_red_ratio);
   paintAlbedo(rc);
 
   hs.resize(4 * nv);
@@ -41,6 +46,18 @@ RockSurface::RockSurface(const RockParams& rc, const LightingParams& lighting)
       hs[4 * k + c] = sunlit[3 * k + c];
     hs[4 * k + 3] = h[k];
   }
+}
+
+void RockSurface::reflectanceUnderDot(double x, double y, double blur_x, double blur_y, float out[4]) const
+{
+  if (board)
+  {
+    const float rho = static_cast<float>(board->reflectance(x, y, blur_x, blur_y));
+    out[0] = out[1] = out[2] = out[3] = rho;  // a grey print, also in the NIR
+    return;
+  }
+  lookup3(refl, x, y, out);
+  out[3] = std::min(1.0f, nir_to_red * out[2]);
 }
 
 // Relief: smooth 10-40 cm features (what a 5 cm dot spacing samples) plus a
@@ -140,11 +157,49 @@ void RockSurface::computeBlockBounds()
   }
 }
 
+// Fine texture (grain, lichen, weathering at 1-3 cm): a factor per channel
+// around 1, mostly brightness (all channels alike) with a quarter of the
+// amplitude as hue (R against B), as a rock's grains differ more in
+// brightness than in colour. Octaves of period / 2 and period / 4 (value
+// noise features of size s repeat over about 2 s).
+struct FineTexture
+{
+  explicit FineTexture(const RockParams& rc)
+    : on(rc.fine_texture_period_m > 0.0),
+      amplitude(rc.fine_texture_amplitude),
+      seed(rc.seed),
+      octaves({{0.5 * rc.fine_texture_period_m, 1.0}, {0.25 * rc.fine_texture_period_m, 0.5}})
+  {
+  }
+
+  // Factors for B, G, R at (x, y); identity when off.
+  void factors(double x, double y, double f[3]) const
+  {
+    f[0] = f[1] = f[2] = 1.0;
+    if (!on)
+      return;
+    // tanh(2.5 n): the two-octave noise n has a standard deviation of about
+    // 0.3, so the brightness factor reaches about 1 +- amplitude.
+    const double brightness = amplitude * std::tanh(2.5 * fractalNoise(x, y, seed ^ 0x7F4A7C15u, octaves));
+    const double hue = 0.25 * amplitude * std::tanh(2.5 * fractalNoise(x, y, seed ^ 0x2545F491u, octaves));
+    f[0] = (1.0 + brightness) * (1.0 - hue);
+    f[1] = 1.0 + brightness;
+    f[2] = (1.0 + brightness) * (1.0 + hue);
+  }
+
+  bool on;
+  double amplitude;
+  uint32_t seed;
+  NoiseOctaves octaves;
+};
+
 // Albedo: reddish (R > G > B), features from 25 cm down to texture_scale_m,
-// R in [albedo_min, albedo_max]; G and B follow with a slowly varying hue.
-// The sun and sky shading is baked per vertex (sunlit).
+// R in [albedo_min, albedo_max]; G and B follow with a slowly varying hue;
+// times the optional fine texture, within [0, 1]. The sun and sky shading is
+// baked per vertex (sunlit).
 void RockSurface::paintAlbedo(const RockParams& rc)
 {
+  const FineTexture fine(rc);
   const uint32_t seed = rc.seed;
   NoiseOctaves tex;
   for (double s = 0.25, w = 1.0; s >= rc.texture_scale_m * 0.999; s *= 0.5, w *= 0.75)
@@ -153,6 +208,8 @@ void RockSurface::paintAlbedo(const RockParams& rc)
     tex.push_back({rc.texture_scale_m, 1.0});
   tex.push_back({rc.texture_scale_m, 0.6});
   const NoiseOctaves hue = {{0.30, 1.0}, {0.08, 0.5}};
+  // albedo_min == albedo_max: a uniform albedo in every channel (no hue).
+  const double hue_on = rc.albedo_max > rc.albedo_min ? 1.0 : 0.0;
   for (int j = 0; j <= ny; ++j)
   {
     for (int i = 0; i <= nx; ++i)
@@ -162,12 +219,14 @@ void RockSurface::paintAlbedo(const RockParams& rc)
       const double n = fractalNoise(x, y, seed ^ 0x51ED27u, tex);
       const double a01 = 0.5 + 0.5 * std::tanh(3.0 * n);
       const double r = rc.albedo_min + (rc.albedo_max - rc.albedo_min) * a01;
-      const double g = r * (0.55 + 0.10 * fractalNoise(x, y, seed ^ 0x3C6EF3u, hue));
-      const double b = r * (0.36 + 0.08 * fractalNoise(x, y, seed ^ 0x1B873593u, hue));
+      const double g = r * (0.55 + hue_on * 0.10 * fractalNoise(x, y, seed ^ 0x3C6EF3u, hue));
+      const double b = r * (0.36 + hue_on * 0.08 * fractalNoise(x, y, seed ^ 0x1B873593u, hue));
+      double f[3];
+      fine.factors(x, y, f);
       float* rf = &refl[3 * static_cast<size_t>(k)];
-      rf[0] = static_cast<float>(b);
-      rf[1] = static_cast<float>(g);
-      rf[2] = static_cast<float>(r);
+      rf[0] = static_cast<float>(std::min(1.0, b * f[0]));
+      rf[1] = static_cast<float>(std::min(1.0, g * f[1]));
+      rf[2] = static_cast<float>(std::min(1.0, r * f[2]));
       const Eigen::Vector3d nrm = Eigen::Vector3d(gx[k], gy[k], -1.0).normalized();
       const double shade = std::max(0.0, nrm.dot(sun_dir)) + sky;
       for (int c = 0; c < 3; ++c)

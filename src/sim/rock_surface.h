@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -19,6 +20,8 @@ namespace structured_light_stabilizer
 {
 namespace sim
 {
+
+class ChessboardPattern;
 
 struct RockSurface
 {
@@ -49,6 +52,10 @@ struct RockSurface
   std::vector<BlockBound> blocks;
   Eigen::Vector3d sun_dir = Eigen::Vector3d(0.0, 0.0, -1.0);  // rock frame, towards the sun (unit)
   double sky = 0.0;
+  float nir_to_red = 1.25f;  // RockParams::nir_to_red_ratio
+  // A printed chessboard instead of the rock (target_board.h): the surface is
+  // then a flat slab of the board's size and its reflectance is the print's.
+  std::shared_ptr<const ChessboardPattern> board;
 
   int vertex(int i, int j) const { return j * (nx + 1) + i; }
 
@@ -115,6 +122,15 @@ struct RockSurface
     for (int c = 0; c < 3; ++c)
       out[c] = w00 * p00[c] + w10 * p00[3 + c] + w01 * p01[c] + w11 * p01[3 + c];
   }
+
+  // Reflectance of the surface at rock-frame (x, y) in the bands B, G, R and
+  // NIR (850 nm), as a projector dot sees it: blurred by a Gaussian of
+  // standard deviation blur_x, blur_y (m, along x and y; the part of the
+  // camera's blur that mixes neighbouring surface points into one pixel of
+  // the dot, simulator.cpp). The rock's albedo grid is smooth on that scale
+  // (< 1 mm against >= 2 mm cells), so the blur only matters for a printed
+  // target's sharp edges.
+  void reflectanceUnderDot(double x, double y, double blur_x, double blur_y, float out[4]) const;
 
   // First intersection of o + s d (rock frame, s >= 0) with the rock. Returns
   // false on a miss; *wall is set when the ray enters through a side wall of

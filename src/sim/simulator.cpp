@@ -4,12 +4,15 @@
 #include "structured_light_stabilizer/sim/simulator.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <stdexcept>
 #include <utility>
 
+#include "brightness.h"
 #include "clutter.h"
 #include "frame_geometry.h"
+#include "motion_blur.h"
 #include "noise.h"
 #include "optics.h"
 #include "projector_dots.h"
@@ -17,7 +20,9 @@
 #include "rock_render.h"
 #include "rock_surface.h"
 #include "sensor.h"
+#include "spectral.h"
 #include "splat.h"
+#include "target_board.h"
 #include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
@@ -54,33 +59,89 @@ ProjectorCalibration makeProjector(const ProjectorParams& pc)
   return projector;
 }
 
+// A dot's pixel, whose noise-free peak decides SimFrame::clipped.
+struct ClipProbe
+{
+  int v, u, beam;
+};
+
+// Everything a row of the frame needs.
+struct RowInputs
+{
+  const sim::RockSampling& sampling;
+  const float* rock_samples;  // nullptr without sun
+  const sim::SplatRows& splats;
+  const sim::SensorNoise& noise;
+  const sim::SensorReadout& readout;
+  const std::vector<ClipProbe>& probes;  // sorted by row
+  Blooming blooming;
+};
+
+// Row v up to the recorded signal: the rock's radiance upsampled (black
+// without sun), the splats, the noise-free copy on request, the clip
+// probes, then the signal the sensor records (returned: L or S).
+float* radianceRow(const RowInputs& in, int v, float* L, float* S, float* blend, SimFrame* frame)
+{
+  const int W = frame->image.cols;
+  if (in.rock_samples)
+    in.sampling.upsampleRow(in.rock_samples, v, W, L, blend);
+  else
+    std::fill(L, L + 3 * W + 5, 0.0f);
+  in.splats.applyRow(v, W, L);
+  auto p =
+      std::lower_bound(in.probes.begin(), in.probes.end(), v, [](const ClipProbe& a, int row) { return a.v < row; });
+  for (; p != in.probes.end() && p->v == v; ++p)
+    frame->clipped[p->beam] = in.readout.pixelPeak(p->u, L) > in.readout.fullWell();
+  float* rec = in.readout.record(v, W, L, S);
+  if (!frame->linear.empty())
+    std::memcpy(frame->linear.ptr<float>(v), frame->linear.channels() == 3 ? L : rec,
+                sizeof(float) * frame->linear.cols * frame->linear.channels());
+  return rec;
+}
+
 // The frame's rows, in parallel (each row's noise is seeded by its index, so
-// the result does not depend on the thread count): the rock's radiance
-// upsampled (black without sun), the splats, the noise-free copy on request,
-// the sensor's noise and quantisation.
-void exposeRows(const sim::RockSampling& sampling, const float* rock_samples, const sim::SplatRows& splats,
-                const sim::SensorNoise& noise, SimFrame* frame)
+// the result does not depend on the thread count). Without a charge path,
+// shot and read noise at once, then the output; with one, the charge of
+// every row (shot noise) first, the full well (clipping, blooming) over the
+// frame, then read noise and the output.
+void exposeRows(const RowInputs& in, SimFrame* frame)
 {
   const int W = frame->image.cols, H = frame->image.rows;
-  const int n3 = 3 * W, nr3 = 3 * sampling.rw;
-  const bool keep_linear = !frame->linear.empty();
+  const int n = in.readout.samplesPerRow(W);
+  const bool charge_path = in.readout.chargePath();
+  cv::Mat charge(charge_path ? H : 0, n, CV_32F);
   cv::parallel_for_(cv::Range(0, H),
                     [&](const cv::Range& range)
                     {
-                      std::vector<float> buf(n3 + 5), normal(n3 + 5), deviation(n3), blend(nr3);
-                      float* L = buf.data();
+                      std::vector<float> buf(3 * W + 5), rec(W + 5), normal(3 * W + 5), deviation(3 * W),
+                          blend(3 * in.sampling.rw);
                       for (int v = range.start; v < range.end; ++v)
                       {
-                        if (rock_samples)
-                          sampling.upsampleRow(rock_samples, v, W, L, blend.data());
-                        else
-                          std::fill(buf.begin(), buf.end(), 0.0f);
-                        splats.applyRow(v, W, L);
-                        if (keep_linear)
-                          std::memcpy(frame->linear.ptr<float>(v), L, sizeof(float) * n3);
-                        if (noise.enabled())
-                          noise.applyRow(v, n3, L, normal.data(), deviation.data());
-                        sim::quantizeRow(L, n3, frame->image.ptr<uint8_t>(v));
+                        float* S = radianceRow(in, v, buf.data(), rec.data(), blend.data(), frame);
+                        if (charge_path)
+                        {
+                          in.noise.applyShotRow(v, n, S, normal.data(), deviation.data());
+                          std::memcpy(charge.ptr<float>(v), S, sizeof(float) * n);
+                          continue;
+                        }
+                        if (in.noise.enabled())
+                          in.noise.applyRow(v, n, S, normal.data(), deviation.data());
+                        in.readout.write(v, S, &frame->image);
+                      }
+                    });
+  if (!charge_path)
+    return;
+  sim::spillCharge(in.blooming, in.readout.fullWell(), &charge);
+  cv::parallel_for_(cv::Range(0, H),
+                    [&](const cv::Range& range)
+                    {
+                      std::vector<float> normal(n + 5);
+                      for (int v = range.start; v < range.end; ++v)
+                      {
+                        float* S = charge.ptr<float>(v);
+                        if (in.noise.enabled())
+                          in.noise.applyReadRow(v, n, S, normal.data());
+                        in.readout.write(v, S, &frame->image);
                       }
                     });
 }
@@ -92,17 +153,24 @@ void exposeRows(const sim::RockSampling& sampling, const float* rock_samples, co
 struct Simulator::Impl
 {
   explicit Impl(const SimulatorParams& p)
-    : rock(p.rock, p.lighting),
-      sampling(p.sensor.camera, p.rock_subsample),
+    : board(p.target.kind == TargetKind::kChessboard),
+      rock(board ? sim::boardSlab(p.target.chessboard, p.rock) : p.rock, p.lighting),
+      // The board's sharp print is rendered per pixel.
+      sampling(p.sensor.camera, board ? 1 : p.rock_subsample),
       clutter(sim::scatterClutter(p.clutter, rock, p.rock.seed)),
-      T_rock_cam0(rockFromCamera0(p.rock))
+      T_rock_cam0(board ? sim::boardRockFromCamera0(p.target.chessboard) : rockFromCamera0(p.rock)),
+      spectrum(sim::cameraSpectrum(p.projector.color, p.sensor.output))
   {
+    if (board)
+      rock.board = std::make_shared<const sim::ChessboardPattern>(p.target.chessboard);
   }
 
+  bool board;
   sim::RockSurface rock;
   sim::RockSampling sampling;
   std::vector<sim::ClutterItem> clutter;
   Eigen::Isometry3d T_rock_cam0;
+  sim::CameraSpectrum spectrum;
 };
 
 Simulator::Simulator(const SimulatorParams& params) : params_(params)
@@ -174,29 +242,58 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
 {
   const Impl& im = *impl_;
   const SensorParams& sc = params_.sensor;
-  const LightingParams& light = params_.lighting;
   SimFrame frame;
   frame.t = t;
   frame.delta = request.arm_correction * motion(t);
   const sim::FrameGeometry g(im.T_rock_cam0 * frame.delta.inverse());
-  const double sun = light.sun_level * LightingParams::kSunFullScaleDn * light.exposure;
+  const double sun = sim::sunDn(params_);
 
   // Clutter patches and dots as splats, in the order they apply to a pixel.
   std::vector<sim::Splat> splats;
+  std::vector<sim::DotAlbedo> dot_albedo;
   if (sun > 0.0)
     sim::addClutterSplats(im.clutter, im.rock, g, sc, sun, &splats);
   const size_t clutter_splats = splats.size();
-  sim::renderDots(params_, projector_, im.rock, g, &frame, &splats);
+  const bool blur = sc.exposure_time_s > 0.0;
+  const sim::GeometryAt geometry = [&](double tau)
+  { return sim::FrameGeometry(im.T_rock_cam0 * (request.arm_correction * motion(tau)).inverse()); };
+  if (blur)
+  {
+    // The truth at t; the dots' light over the exposure. (Clutter patches
+    // stay at t: they are blended reflectance, not added light.)
+    std::vector<sim::Splat> unused;
+    std::vector<sim::DotAlbedo> unused_albedo;
+    sim::renderDots(params_, projector_, im.rock, g, &frame, &unused, &unused_albedo);
+    sim::renderBlurredDots(params_, projector_, im.rock, geometry, t, &splats, &dot_albedo);
+  }
+  else
+    sim::renderDots(params_, projector_, im.rock, g, &frame, &splats, &dot_albedo);
+  if (im.board)
+    sim::boardTruth(params_.target.chessboard, sc.camera, g, &frame.target_pose, &frame.target_corners);
   if (!request.projector_on)
     splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
-  const sim::SplatRows splat_rows(std::move(splats), sc.camera.height);
+  const sim::SplatRows splat_rows(std::move(splats), std::move(dot_albedo), im.rock, sc.camera.height);
 
-  const float* rock_samples =
-      sun > 0.0 ? sim::renderRockSamples(im.rock, im.sampling, sc.camera, g, sun, sc.natural_vignetting) : nullptr;
+  const float* rock_samples = nullptr;
+  if (sun > 0.0)
+    rock_samples = blur ? sim::renderBlurredRock(im.rock, im.sampling, sc, geometry, t, sun)
+                        : sim::renderRockSamples(im.rock, im.sampling, sc, g, sun);
+  const sim::SensorReadout readout(sc, im.spectrum.mono_weights);
   if (params_.keep_linear)
-    frame.linear.create(sc.camera.height, sc.camera.width, CV_32FC3);
-  frame.image.create(sc.camera.height, sc.camera.width, CV_8UC3);
-  exposeRows(im.sampling, rock_samples, splat_rows, sim::SensorNoise(sc, params_.noise_seed, t), &frame);
+    frame.linear.create(sc.camera.height, sc.camera.width, readout.linearType());
+  frame.image.create(sc.camera.height, sc.camera.width, readout.imageType());
+  frame.encoding = encodingName(sc.output);
+  frame.clipped.assign(frame.visible.size(), 0);
+  std::vector<ClipProbe> probes;
+  for (size_t b = 0; b < frame.visible.size(); ++b)
+    if (frame.visible[b])
+      probes.push_back({static_cast<int>(std::lround(frame.pixels[b].y)),
+                        static_cast<int>(std::lround(frame.pixels[b].x)), static_cast<int>(b)});
+  if (!request.projector_on)
+    probes.clear();  // no dot, nothing clipped by it
+  std::sort(probes.begin(), probes.end(), [](const ClipProbe& a, const ClipProbe& b) { return a.v < b.v; });
+  const sim::SensorNoise noise(sc, params_.noise_seed, t);
+  exposeRows({im.sampling, rock_samples, splat_rows, noise, readout, probes, sc.blooming}, &frame);
   return frame;
 }
 

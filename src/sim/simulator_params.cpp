@@ -1,5 +1,6 @@
 #include "structured_light_stabilizer/sim/simulator_params.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -34,6 +35,12 @@ void checkSensor(const SensorParams& sensor, std::ostringstream& why)
     why << "read_noise_dn must be >= 0; ";
   if (!finitePositive(sensor.gain_dn_per_electron))
     why << "gain_dn_per_electron must be > 0; ";
+  if (!(sensor.exposure_time_s >= 0.0 && sensor.exposure_time_s <= 1.0) || sensor.exposure_samples < 1 ||
+      sensor.exposure_samples > 64)
+    why << "exposure_time_s " << sensor.exposure_time_s << " must be in [0, 1] and exposure_samples "
+        << sensor.exposure_samples << " in [1, 64]; ";
+  if (!(sensor.full_well_dn >= 1.0 && sensor.full_well_dn <= 1e6))
+    why << "full_well_dn " << sensor.full_well_dn << " is outside [1, 1e6]; ";
 }
 
 void checkRock(const RockParams& rock, std::ostringstream& why)
@@ -52,12 +59,73 @@ void checkRock(const RockParams& rock, std::ostringstream& why)
     why << "albedo range [" << rock.albedo_min << ", " << rock.albedo_max << "] must satisfy 0 <= min <= max <= 1; ";
   if (!(rock.texture_scale_m >= 0.002 && rock.texture_scale_m <= 1.0))
     why << "texture_scale_m " << rock.texture_scale_m << " is outside [0.002, 1]; ";
+  if (!(rock.fine_texture_period_m == 0.0 ||
+        (rock.fine_texture_period_m >= 0.004 && rock.fine_texture_period_m <= 1.0)))
+    why << "fine_texture_period_m " << rock.fine_texture_period_m << " must be 0 (off) or within [0.004, 1]; ";
+  if (!(rock.fine_texture_amplitude >= 0.0 && rock.fine_texture_amplitude <= 0.9))
+    why << "fine_texture_amplitude " << rock.fine_texture_amplitude << " is outside [0, 0.9]; ";
+  if (!(rock.nir_to_red_ratio > 0.0 && rock.nir_to_red_ratio <= 5.0))
+    why << "nir_to_red_ratio " << rock.nir_to_red_ratio << " is outside (0, 5]; ";
   if (!(std::abs(rock.tilt_x_rad) < 1.2 && std::abs(rock.tilt_y_rad) < 1.2))
     why << "rock tilt must stay below 1.2 rad; ";
 }
 
+void checkTarget(const TargetParams& target, std::ostringstream& why)
+{
+  if (target.kind != TargetKind::kChessboard)
+    return;
+  const ChessboardParams& b = target.chessboard;
+  if (b.cols < 2 || b.rows < 2 || b.cols > 60 || b.rows > 60)
+    why << "chessboard inner corners " << b.cols << " x " << b.rows << " are outside [2, 60]; ";
+  if (!(b.square_m >= 0.005 && b.square_m <= 1.0) || !(b.margin_m >= 0.0 && b.margin_m <= 1.0))
+    why << "chessboard square " << b.square_m << " m must be in [0.005, 1] and margin " << b.margin_m
+        << " m in [0, 1]; ";
+  else if ((std::max(b.cols, b.rows) + 1) * b.square_m + 2.0 * b.margin_m > 5.0)
+    why << "chessboard larger than 5 m; ";
+  if (!(b.black >= 0.0 && b.black <= b.white && b.white <= 1.0))
+    why << "chessboard reflectances must satisfy 0 <= black <= white <= 1; ";
+  if (!(b.distance_m >= 0.2 && b.distance_m <= 20.0))
+    why << "chessboard distance " << b.distance_m << " m is outside [0.2, 20]; ";
+  if (!(std::abs(b.tilt_x_rad) < 1.4 && std::abs(b.tilt_y_rad) < 1.4) || !std::isfinite(b.roll_rad) ||
+      !b.offset_m.allFinite())
+    why << "chessboard tilts must stay below 1.4 rad, roll and offset finite; ";
+}
+
+// The band a colour's wavelength must lie in (nm).
+void wavelengthBand(ProjectorColor color, double* lo, double* hi)
+{
+  switch (color)
+  {
+    case ProjectorColor::kGreen:
+      *lo = 490.0;
+      *hi = 570.0;
+      return;
+    case ProjectorColor::kRed:
+      *lo = 600.0;
+      *hi = 700.0;
+      return;
+    case ProjectorColor::kBlue:
+      *lo = 420.0;
+      *hi = 490.0;
+      return;
+    case ProjectorColor::kNir:
+      *lo = 780.0;
+      *hi = 1000.0;
+      return;
+    case ProjectorColor::kWhite:
+      *lo = 400.0;
+      *hi = 700.0;
+      return;
+  }
+}
+
 void checkProjector(const ProjectorParams& projector, std::ostringstream& why)
 {
+  double lo = 0.0, hi = 0.0;
+  wavelengthBand(projector.color, &lo, &hi);
+  if (!(projector.wavelength_nm >= lo && projector.wavelength_nm <= hi))
+    why << "projector wavelength " << projector.wavelength_nm << " nm is outside the "
+        << projectorColorName(projector.color) << " band [" << lo << ", " << hi << "] nm; ";
   if (projector.rows < 1 || projector.cols < 1 || projector.rows > 100 || projector.cols > 100)
     why << "projector grid " << projector.rows << " x " << projector.cols << " is outside [1, 100]; ";
   if (!projector.origin_m.allFinite() || !std::isfinite(projector.pitch_x_rad) ||
@@ -104,7 +172,11 @@ std::string SimulatorParams::validate() const
   std::ostringstream why;
   checkSensor(sensor, why);
   checkRock(rock, why);
+  checkTarget(target, why);
   checkProjector(projector, why);
+  if (projector.color == ProjectorColor::kNir && !isMonochrome(sensor.output))
+    why << "an NIR projector needs a monochrome output (mono8, mono16): a colour camera's IR-cut filter blocks 850 "
+           "nm; ";
   checkLighting(lighting, why);
   checkMotion(motion, why);
   if (rock_subsample < 1 || rock_subsample > 4)
@@ -114,6 +186,94 @@ std::string SimulatorParams::validate() const
   if (s.size() >= 2)
     s.resize(s.size() - 2);  // the last "; "
   return s;
+}
+
+namespace
+{
+
+struct ColorName
+{
+  ProjectorColor color;
+  const char* name;
+  double nominal_nm;
+};
+constexpr ColorName kColors[] = {{ProjectorColor::kGreen, "green", 520.0},
+                                 {ProjectorColor::kRed, "red", 638.0},
+                                 {ProjectorColor::kBlue, "blue", 450.0},
+                                 {ProjectorColor::kNir, "nir", 850.0},
+                                 {ProjectorColor::kWhite, "white", 550.0}};
+
+struct OutputName
+{
+  SensorOutput output;
+  const char* encoding;
+};
+constexpr OutputName kOutputs[] = {{SensorOutput::kBgr8, "bgr8"},
+                                   {SensorOutput::kRgb8, "rgb8"},
+                                   {SensorOutput::kMono8, "mono8"},
+                                   {SensorOutput::kMono16, "mono16"},
+                                   {SensorOutput::kBayerRggb8, "bayer_rggb8"},
+                                   {SensorOutput::kBayerBggr8, "bayer_bggr8"},
+                                   {SensorOutput::kBayerGbrg8, "bayer_gbrg8"},
+                                   {SensorOutput::kBayerGrbg8, "bayer_grbg8"}};
+
+}  // namespace
+
+bool projectorColorFromName(const std::string& name, ProjectorColor* color)
+{
+  for (const ColorName& c : kColors)
+    if (name == c.name)
+    {
+      *color = c.color;
+      return true;
+    }
+  return false;
+}
+
+const char* projectorColorName(ProjectorColor color)
+{
+  for (const ColorName& c : kColors)
+    if (c.color == color)
+      return c.name;
+  return "?";
+}
+
+double nominalWavelengthNm(ProjectorColor color)
+{
+  for (const ColorName& c : kColors)
+    if (c.color == color)
+      return c.nominal_nm;
+  return 520.0;
+}
+
+const char* encodingName(SensorOutput output)
+{
+  for (const OutputName& o : kOutputs)
+    if (o.output == output)
+      return o.encoding;
+  return "?";
+}
+
+bool sensorOutputFromEncoding(const std::string& encoding, SensorOutput* output)
+{
+  for (const OutputName& o : kOutputs)
+    if (encoding == o.encoding)
+    {
+      *output = o.output;
+      return true;
+    }
+  return false;
+}
+
+bool isMonochrome(SensorOutput output)
+{
+  return output == SensorOutput::kMono8 || output == SensorOutput::kMono16;
+}
+
+bool isBayer(SensorOutput output)
+{
+  return output == SensorOutput::kBayerRggb8 || output == SensorOutput::kBayerBggr8 ||
+         output == SensorOutput::kBayerGbrg8 || output == SensorOutput::kBayerGrbg8;
 }
 
 double LightingParams::sceneDotToSunRatio(RadiometryModel model)

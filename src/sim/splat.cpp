@@ -32,7 +32,7 @@ bool setSplatShape(Splat* sp, const Eigen::Matrix2d& S, double q_max, int height
 // exp(-q/2) follows the recurrence g(u+1) = g(u) r(u), r(u+1) = r(u) exp(-a),
 // three exp() per row instead of one per pixel (S always holds the pixel box,
 // so a <= 12 and the factors stay far from under- or overflow).
-void applySplatRow(const Splat& sp, int v, int width, float* row)
+void applySplatRow(const Splat& sp, int v, int width, float* row, const DotAlbedo* albedo, const RockSurface* surface)
 {
   const double dy = v - sp.cy;
   const double disc = sp.b * sp.b * dy * dy - sp.a * (sp.c * dy * dy - sp.q_max);
@@ -49,6 +49,18 @@ void applySplatRow(const Splat& sp, int v, int width, float* row)
   double r = std::exp(-0.5 * (sp.a * (2.0 * dx0 + 1.0) + 2.0 * sp.b * dy));
   const double k = std::exp(-sp.a);
   float* px = row + 3 * u0;
+  if (sp.albedo >= 0)
+  {
+    for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
+    {
+      float f[3] = {albedo->f0[0], albedo->f0[1], albedo->f0[2]};
+      if (g >= albedo->g_lookup)
+        albedo->factors(*surface, u - sp.cx, dy, f);
+      for (int ch = 0; ch < 3; ++ch)
+        px[ch] += static_cast<float>(sp.value[ch] * f[ch] * g);
+    }
+    return;
+  }
   if (!sp.blend)
   {
     for (int u = u0; u <= u1; ++u, px += 3, g *= r, r *= k)
@@ -81,8 +93,8 @@ Eigen::Matrix<double, 2, 3> projectionJacobian(const CameraModel& cam, const Eig
   return J;
 }
 
-SplatRows::SplatRows(std::vector<Splat> splats, int height)
-  : splats_(std::move(splats)), bands_((height + kBand - 1) / kBand)
+SplatRows::SplatRows(std::vector<Splat> splats, std::vector<DotAlbedo> albedo, const RockSurface& surface, int height)
+  : splats_(std::move(splats)), albedo_(std::move(albedo)), surface_(surface), bands_((height + kBand - 1) / kBand)
 {
   for (size_t k = 0; k < splats_.size(); ++k)
     for (int band = splats_[k].v0 / kBand; band <= splats_[k].v1 / kBand; ++band)
@@ -93,7 +105,10 @@ void SplatRows::applyRow(int v, int width, float* row) const
 {
   for (int k : bands_[v / kBand])
     if (v >= splats_[k].v0 && v <= splats_[k].v1)
-      applySplatRow(splats_[k], v, width, row);
+    {
+      const Splat& sp = splats_[k];
+      applySplatRow(sp, v, width, row, sp.albedo >= 0 ? &albedo_[sp.albedo] : nullptr, &surface_);
+    }
 }
 
 }  // namespace sim

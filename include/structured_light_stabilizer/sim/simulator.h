@@ -1,8 +1,8 @@
 // Physically grounded scene simulator (docs/simulator.md), ROS-free and
 // deterministic.
 //
-// Contract: render(t) gives a bgr8 frame of the rock as seen by the study's
-// camera at time t (seconds), plus the ground truth for that frame: the hit
+// Contract: render(t) gives a frame (bgr8 by default; SensorParams::output)
+// of the rock as seen by the study's camera at time t (seconds), plus the ground truth for that frame: the hit
 // point of every projector beam in the camera optical frame at t (NaN where
 // the beam misses the rock or the hit point is hidden from the camera), its
 // (distorted) pixel projection, and the true camera motion since t = 0 as
@@ -64,14 +64,34 @@ namespace structured_light_stabilizer
 struct SimFrame
 {
   double t = 0.0;
-  cv::Mat image;                        // CV_8UC3, bgr8
+  // The sensor's output (SensorParams::output): encoding is its
+  // sensor_msgs name; image is CV_8UC3 (bgr8, rgb8), CV_8UC1 (mono8, bayer_*)
+  // or CV_16UC1 (mono16).
+  std::string encoding = "bgr8";
+  cv::Mat image;
   std::vector<Eigen::Vector3d> points;  // per beam, camera frame at t; NaN if not visible
   std::vector<cv::Point2d> pixels;      // per beam, distorted pixel of the hit point; NaN if not visible
   std::vector<double> blur_sigma_px;    // per beam, Gaussian sigma of the rendered dot
   std::vector<uint8_t> visible;         // per beam, 1 when the dot is in view and unoccluded
-  std::vector<double> peak_dn;          // per beam, noise-free peak of the dot in the green channel (0 if not visible)
-  cv::Mat linear;                       // CV_32FC3 noise-free radiance in DN, only with keep_linear
+  // Per beam, noise-free peak of the dot (DN, 8-bit counts) in the
+  // projector's own channel (green for green and white, red, blue; the one
+  // channel of a monochrome camera); 0 if not visible.
+  std::vector<double> peak_dn;
+  // Per beam, 1 when the noise-free signal at the dot's pixel (dot and rock,
+  // any channel) exceeds the full well: the dot is clipped.
+  std::vector<uint8_t> clipped;
+  // Noise-free radiance in DN before noise, clipping and quantisation, only
+  // with keep_linear: CV_32FC3 (B, G, R) for colour and Bayer outputs (the
+  // mosaic samples it), CV_32FC1 for monochrome.
+  cv::Mat linear;
   Eigen::Isometry3d delta = Eigen::Isometry3d::Identity();  // p_cur = delta * p_ref, ref = t=0
+  // Chessboard target only (TargetKind::kChessboard; identity / empty
+  // otherwise): the board frame (ChessboardParams) in the camera frame at t
+  // (p_cam = target_pose * p_board), and the distorted pixel of every inner
+  // corner, index j * cols + i for corner (i, j) (OpenCV's object-point
+  // order), NaN when behind the camera or outside the image.
+  Eigen::Isometry3d target_pose = Eigen::Isometry3d::Identity();
+  std::vector<cv::Point2d> target_corners;
 };
 
 // What a frame is asked for besides its time (the CameraDriver's strobed and

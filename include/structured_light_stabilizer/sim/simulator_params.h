@@ -41,8 +41,18 @@ struct RockParams
   double relief_m = 0.15;    // peak-to-peak relief of the height field (0 = flat board)
   double albedo_min = 0.05;  // reddish textured albedo range (docs/study.md §1.1.3)
   double albedo_max = 0.45;
-  double texture_scale_m = 0.02;  // size of the finest albedo features
-  double tilt_x_rad = 0.0;        // orientation of the mean plane (0 = facing the camera)
+  double texture_scale_m = 0.02;  // size of the finest albedo features (>= 0.1: a weakly textured rock)
+  // Optional fine texture (docs/simulator.md, "Rock"): a multiplicative
+  // albedo modulation of this period (m; 0 = off; real rock: 0.01-0.03) and
+  // relative amplitude (0.25 = albedo within about +-25 %), mostly brightness
+  // with a little hue (R against B). Resolving it needs a finer vertex grid
+  // (period / 8, >= 2 mm): more memory and build time when on.
+  double fine_texture_period_m = 0.0;
+  double fine_texture_amplitude = 0.25;
+  // Reflectance at 850 nm over the red reflectance (an NIR projector's dots):
+  // iron-bearing rock reflects more in the near infrared than in the red.
+  double nir_to_red_ratio = 1.25;
+  double tilt_x_rad = 0.0;  // orientation of the mean plane (0 = facing the camera)
   double tilt_y_rad = 0.0;
   // Optional straight step along y at x = step_x_m: the side x > step_x_m lies
   // step_height_m farther from the camera (negative: nearer). For occlusion
@@ -51,6 +61,22 @@ struct RockParams
   double step_x_m = 0.0;
   uint32_t seed = 1;
 };
+
+// The projector's light (#16); docs/simulator.md, "Colours and sensor outputs".
+enum class ProjectorColor
+{
+  kGreen,  // 520 nm (the study's)
+  kRed,    // 638 nm (635-660 nm lasers)
+  kBlue,   // 450 nm
+  kNir,    // 850 nm: a monochrome camera only (a colour camera's IR-cut filter blocks it)
+  kWhite,  // broadband
+};
+
+// "green", "red", "blue", "nir", "white"; false for another name.
+bool projectorColorFromName(const std::string& name, ProjectorColor* color);
+const char* projectorColorName(ProjectorColor color);
+// The colour's nominal wavelength (white: 550 nm, for diffraction).
+double nominalWavelengthNm(ProjectorColor color);
 
 struct ProjectorParams
 {
@@ -61,12 +87,39 @@ struct ProjectorParams
   double pitch_y_rad = 0.035;
   double roll_rad = 0.087;           // in-plane rotation of the grid (5 deg by default)
   double converge_distance_m = 1.5;  // the central beam crosses the optical axis here
-  double wavelength_nm = 520.0;
+  ProjectorColor color = ProjectorColor::kGreen;
+  double wavelength_nm = 520.0;  // within the colour's band (validate()); sets the diffraction
   // Gaussian divergence of each beam (1-sigma, rad): a dot's sigma on the rock
   // grows with its distance from the projector, so its image size stays about
   // 2 px at any depth (3 mm at 1.5 m -> 2.0 px with fx = 1011.7 px).
   double beam_sigma_rad = 0.002;
   double power_scale = 1.0;  // relative dot brightness (1 = the study's LED design)
+};
+
+// What the camera delivers (#16): the ROS image encodings.
+enum class SensorOutput
+{
+  kBgr8,
+  kRgb8,
+  kMono8,       // a monochrome camera: one channel
+  kMono16,      // the same, 16 bits: DN * 257 (the 8-bit range, and so the default full well, over 65535)
+  kBayerRggb8,  // a colour camera's raw mosaic: each pixel its own channel's signal and noise
+  kBayerBggr8,
+  kBayerGbrg8,
+  kBayerGrbg8,
+};
+
+// The sensor_msgs encoding ("bgr8", "bayer_rggb8", ...) and back.
+const char* encodingName(SensorOutput output);
+bool sensorOutputFromEncoding(const std::string& encoding, SensorOutput* output);
+bool isMonochrome(SensorOutput output);
+bool isBayer(SensorOutput output);
+
+// What a pixel's charge above the full well does.
+enum class Blooming
+{
+  kNone,    // it is lost (an anti-blooming drain): the pixel clips at the full well
+  kColumn,  // it spills along the column, half up, half down, into pixels with room (a frame-transfer CCD)
 };
 
 struct SensorParams
@@ -84,6 +137,18 @@ struct SensorParams
   // Natural vignetting: image irradiance falls as cos^4 of the off-axis angle
   // (the study's eq. 2.9 factor; 0.45 in the corners of this 53 deg lens).
   bool natural_vignetting = true;
+  SensorOutput output = SensorOutput::kBgr8;
+  // Charge at which a pixel is full, in DN (8-bit counts; 255 = the 8-bit
+  // range, 25.5 ke- at the default gain). Below 255 the 8-bit image clips
+  // there, before the read noise.
+  double full_well_dn = 255.0;
+  Blooming blooming = Blooming::kNone;
+  // Exposure-time motion blur (option; 0 = an instantaneous exposure): the
+  // frame integrates the rig's motion over this exposure, centred on the
+  // frame's time (the ground truth's instant), in exposure_samples
+  // sub-exposures of the rock (the dots take as many as their smear needs).
+  double exposure_time_s = 0.0;
+  int exposure_samples = 8;
 };
 
 struct LightingParams
@@ -126,10 +191,44 @@ struct ClutterParams
   int green_blobs = 0;     // dot-sized green blobs on the rock (spurious dots)
 };
 
+// A printed chessboard (#19), OpenCV's convention: `cols` x `rows` inner
+// corners, corner (i, j) at (i * square_m, j * square_m, 0) in the board
+// frame (x along a row of corners, y down the rows, z into the board, away
+// from the camera); the outer square at the corner (-1, -1) is black. The
+// squares sit inside a white printed margin; the board is flat.
+struct ChessboardParams
+{
+  int cols = 10;  // inner corners per row
+  int rows = 8;   // inner corners per column
+  double square_m = 0.08;
+  double margin_m = 0.04;            // white margin around the outer squares
+  double black = 0.03, white = 0.5;  // reflectance, every band (white / black ~ 16)
+  // Pose at t = 0: the centre of the inner corners at `distance_m` along the
+  // optical axis plus `offset_m` (camera x, y), the board rotated by
+  // Rx(tilt_x) Ry(tilt_y) Rz(roll) from facing the camera squarely.
+  double distance_m = 1.5;
+  double tilt_x_rad = 0.0, tilt_y_rad = 0.0, roll_rad = 0.0;
+  Eigen::Vector2d offset_m = Eigen::Vector2d::Zero();
+};
+
+enum class TargetKind
+{
+  kRock,        // the rock of RockParams
+  kChessboard,  // a flat printed chessboard (ChessboardParams) instead
+};
+
+// What the camera looks at (docs/simulator.md, "Targets").
+struct TargetParams
+{
+  TargetKind kind = TargetKind::kRock;
+  ChessboardParams chessboard;
+};
+
 struct SimulatorParams
 {
   SensorParams sensor;
   RockParams rock;
+  TargetParams target;
   ProjectorParams projector;
   LightingParams lighting;
   RigMotionParams motion;
