@@ -25,7 +25,7 @@ using DotMatrix = Eigen::Matrix<double, kDotParams, kDotParams>;
 struct BoardAlbedoSource
 {
   const CameraModel* camera = nullptr;
-  const ChessboardParams* board = nullptr;
+  const BoardParams* board = nullptr;
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
   bool square00_white = true;
   double black_ratio = 1.0 / 16.0;

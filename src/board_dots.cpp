@@ -139,7 +139,7 @@ double edgeMisfit(const std::vector<cv::Mat>& img_windows, const std::vector<cv:
 // Lens blur (px) from the board's own square edges: windows on the edges
 // between neighbouring inner corners, away from dot candidates; the sigma
 // whose blurred albedo matches them best (golden section over [0, 4] px).
-double measurePsf(const cv::Mat& img, const cv::Mat& albedo, const CameraModel& camera, const ChessboardParams& board,
+double measurePsf(const cv::Mat& img, const cv::Mat& albedo, const CameraModel& camera, const BoardParams& board,
                   const ChessboardDetection& det, double black_ratio, const std::vector<cv::Point2d>& avoid)
 {
   const int half = 6, pad = 6;
@@ -308,7 +308,7 @@ bool fitDot(const cv::Mat& img, const cv::Mat& ambient, const detail::BoardAlbed
 }  // namespace
 
 std::vector<BoardDot> findBoardDots(const cv::Mat& dots_in, double full_scale, const CameraModel& camera,
-                                    const ChessboardParams& board, const ChessboardDetection& det,
+                                    const BoardParams& board, const ChessboardDetection& det,
                                     const BoardDotParams& params, BoardDotReport* report)
 {
   BoardDotReport rep;

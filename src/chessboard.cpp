@@ -22,7 +22,7 @@ using Vector6d = Eigen::Matrix<double, 6, 1>;
 
 // Starting pose from a planar PnP on the undistorted corners (K = I), so any
 // distortion model of the CameraModel works.
-bool initialPose(const CameraModel& camera, const ChessboardParams& params, const std::vector<cv::Point2d>& corners,
+bool initialPose(const CameraModel& camera, const BoardParams& params, const std::vector<cv::Point2d>& corners,
                  const std::vector<char>& used, Eigen::Isometry3d* pose)
 {
   std::vector<cv::Point3d> object;
@@ -54,7 +54,7 @@ bool initialPose(const CameraModel& camera, const ChessboardParams& params, cons
 
 // Sum of squared reprojection errors of the used corners (px^2); +inf when
 // a corner falls behind the camera.
-double cornerCost(const CameraModel& camera, const ChessboardParams& params, const std::vector<cv::Point2d>& corners,
+double cornerCost(const CameraModel& camera, const BoardParams& params, const std::vector<cv::Point2d>& corners,
                   const std::vector<char>& used, const Eigen::Isometry3d& pose, int* n_used)
 {
   double sum = 0.0;
@@ -76,7 +76,7 @@ double cornerCost(const CameraModel& camera, const ChessboardParams& params, con
 
 // Mean of the image at the centres of the squares of each parity; false when
 // too few squares are in the image.
-bool measureSquares(const cv::Mat& img, const CameraModel& camera, const ChessboardParams& params,
+bool measureSquares(const cv::Mat& img, const CameraModel& camera, const BoardParams& params,
                     const Eigen::Isometry3d& pose, double* even_level, double* odd_level)
 {
   std::vector<double> even, odd;
@@ -102,7 +102,7 @@ bool measureSquares(const cv::Mat& img, const CameraModel& camera, const Chessbo
 
 }  // namespace
 
-std::string ChessboardParams::validate() const
+std::string BoardParams::validate() const
 {
   std::ostringstream why;
   if (cols < 2 || rows < 2)
@@ -128,7 +128,7 @@ bool parseBoardSize(const std::string& text, int* cols, int* rows)
   return true;
 }
 
-bool refineBoardPose(const CameraModel& camera, const ChessboardParams& params,
+bool refineBoardPose(const CameraModel& camera, const BoardParams& params,
                      const std::vector<cv::Point2d>& corners, const std::vector<char>& used, Eigen::Isometry3d* pose,
                      double* rms_px)
 {
@@ -189,7 +189,7 @@ bool refineBoardPose(const CameraModel& camera, const ChessboardParams& params,
   return pose->translation().z() > 0.0 && std::isfinite(*rms_px);
 }
 
-ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& camera, const ChessboardParams& params)
+ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& camera, const BoardParams& params)
 {
   ChessboardDetection det;
   det.why = params.validate();
@@ -245,7 +245,7 @@ ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& came
   return det;
 }
 
-double boardAlbedo(const ChessboardParams& params, bool square00_white, double black_ratio, double x, double y)
+double boardAlbedo(const BoardParams& params, bool square00_white, double black_ratio, double x, double y)
 {
   const double s = params.square_m, m = params.margin_m;
   if (x < -s - m || y < -s - m || x > params.cols * s + m || y > params.rows * s + m)
@@ -275,7 +275,7 @@ namespace
 constexpr long kMargin = -1000000;
 constexpr long kOutside = -2000000;
 
-long boardRegion(const ChessboardParams& params, double x, double y)
+long boardRegion(const BoardParams& params, double x, double y)
 {
   const double s = params.square_m, m = params.margin_m;
   if (!std::isfinite(x) || x < -s - m || y < -s - m || x > params.cols * s + m || y > params.rows * s + m)
@@ -324,7 +324,7 @@ void boardCoordinatesAtCellCorners(const CameraModel& camera, const Eigen::Isome
 // Mean albedo over a cell given the board coordinates of its corners: one
 // value when the corners lie in one square, else ns x ns samples of the
 // bilinear footprint; NaN when any part lies beyond the print.
-float cellAlbedo(const ChessboardParams& params, bool square00_white, double black_ratio, const double x[4],
+float cellAlbedo(const BoardParams& params, bool square00_white, double black_ratio, const double x[4],
                  const double y[4], int ns)
 {
   const long r00 = boardRegion(params, x[0], y[0]);
@@ -353,7 +353,7 @@ float cellAlbedo(const ChessboardParams& params, bool square00_white, double bla
 
 }  // namespace
 
-cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const ChessboardParams& params,
+cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& params,
                                 const Eigen::Isometry3d& pose, bool square00_white, double black_ratio,
                                 const cv::Rect& rect, int subsample, int edge_samples)
 {
@@ -374,7 +374,7 @@ cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const ChessboardParam
   return out;
 }
 
-cv::Mat renderBoardAlbedo(const CameraModel& camera, const ChessboardParams& params, const Eigen::Isometry3d& pose,
+cv::Mat renderBoardAlbedo(const CameraModel& camera, const BoardParams& params, const Eigen::Isometry3d& pose,
                           bool square00_white, double black_ratio, const cv::Size& size, int edge_samples)
 {
   return renderBoardAlbedoWindow(camera, params, pose, square00_white, black_ratio,

@@ -87,7 +87,7 @@ struct BoardDotReport
 // channel of the projector's colour (CV_8U, CV_16U or CV_32F, one channel,
 // the camera's size); full_scale is its clipping level (255 for 8-bit).
 std::vector<BoardDot> findBoardDots(const cv::Mat& dots, double full_scale, const CameraModel& camera,
-                                    const ChessboardParams& board, const ChessboardDetection& detection,
+                                    const BoardParams& board, const ChessboardDetection& detection,
                                     const BoardDotParams& params, BoardDotReport* report);
 
 }  // namespace structured_light_stabilizer

@@ -33,7 +33,7 @@
 namespace structured_light_stabilizer
 {
 
-struct ChessboardParams
+struct BoardParams
 {
   int cols = 10;          // inner corners along a row (OpenCV patternSize.width)
   int rows = 8;           // inner corners along a column (patternSize.height)
@@ -74,32 +74,32 @@ struct ChessboardDetection
 // false with `why` when there is no board, when it is cut by the image edge
 // or when the pose is degenerate.
 ChessboardDetection detectChessboard(const cv::Mat& board_image, const CameraModel& camera,
-                                     const ChessboardParams& params);
+                                     const BoardParams& params);
 
 // Pose of the board from its corners (distorted px) by Levenberg-Marquardt
 // on the reprojection error, starting from *pose (identity: from a planar
 // PnP on the undistorted corners). Corners with used[k] == 0 are ignored.
 // Returns false when fewer than 4 corners are usable or the fit diverges.
-bool refineBoardPose(const CameraModel& camera, const ChessboardParams& params,
+bool refineBoardPose(const CameraModel& camera, const BoardParams& params,
                      const std::vector<cv::Point2d>& corners, const std::vector<char>& used, Eigen::Isometry3d* pose,
                      double* rms_px);
 
 // Reflectance of the board at board coordinates (x, y) metres: 1 on white,
 // `black_ratio` on black, 1 on the margin, NaN beyond it.
-double boardAlbedo(const ChessboardParams& params, bool square00_white, double black_ratio, double x, double y);
+double boardAlbedo(const BoardParams& params, bool square00_white, double black_ratio, double x, double y);
 
 // The board's albedo under every pixel of the image (CV_32F, `size`): the
 // mean of boardAlbedo over the pixel's footprint (pixels crossed by a square
 // edge are sampled `edge_samples` x `edge_samples` times), NaN where any
 // part of the pixel lies beyond the board (margin included). This is what a
 // flat-lit board would show before the lens blur, white = 1.
-cv::Mat renderBoardAlbedo(const CameraModel& camera, const ChessboardParams& params, const Eigen::Isometry3d& pose,
+cv::Mat renderBoardAlbedo(const CameraModel& camera, const BoardParams& params, const Eigen::Isometry3d& pose,
                           bool square00_white, double black_ratio, const cv::Size& size, int edge_samples = 16);
 
 // The same over the pixels of `rect` divided `subsample` times per pixel:
 // CV_32F of rect.size() * subsample, cell (i, j) covering pixel coordinates
 // [rect.x - 0.5 + i / subsample, ... + 1 / subsample) likewise in y.
-cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const ChessboardParams& params,
+cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& params,
                                 const Eigen::Isometry3d& pose, bool square00_white, double black_ratio,
                                 const cv::Rect& rect, int subsample, int edge_samples = 16);
 

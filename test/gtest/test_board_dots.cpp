@@ -31,7 +31,7 @@ struct ViewStats
 // Whether a dot's whole fitting window (+- 12 px) lies on the print: the
 // dots the finder is asked to find (nearer the print's border the albedo
 // under the window is unknown).
-bool inScope(const CameraModel& cam, const ChessboardParams& board, const Eigen::Isometry3d& pose, const cv::Point2d& h)
+bool inScope(const CameraModel& cam, const BoardParams& board, const Eigen::Isometry3d& pose, const cv::Point2d& h)
 {
   for (int k = 0; k < 4; ++k)
   {
@@ -44,7 +44,7 @@ bool inScope(const CameraModel& cam, const ChessboardParams& board, const Eigen:
 }
 
 // Dots of one rendered view matched to the true hit pixels (1.5 px).
-void scoreView(const CameraModel& cam, const ChessboardParams& board, const std::vector<BoardDot>& dots,
+void scoreView(const CameraModel& cam, const BoardParams& board, const std::vector<BoardDot>& dots,
                const sls_test::ChessboardSceneTruth& truth, ViewStats* s)
 {
   for (const cv::Point2d& h : truth.hit_pixels)

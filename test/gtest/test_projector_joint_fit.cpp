@@ -32,7 +32,7 @@ struct SyntheticViewOptions
 };
 
 // One view: the board at `pose`, corners and the dots on the print with noise.
-JointFitView syntheticView(const CameraModel& cam, const ProjectorCalibration& proj, const ChessboardParams& board,
+JointFitView syntheticView(const CameraModel& cam, const ProjectorCalibration& proj, const BoardParams& board,
                            const Eigen::Isometry3d& pose, const SyntheticViewOptions& o, uint32_t seed,
                            std::vector<int>* moved = nullptr)
 {
@@ -78,7 +78,7 @@ JointFitView syntheticView(const CameraModel& cam, const ProjectorCalibration& p
 }
 
 // Six views at 1.2-1.6 m tilted up to +-20 deg (the acceptance of #19).
-std::vector<Eigen::Isometry3d> sixPoses(const ChessboardParams& board, int variant)
+std::vector<Eigen::Isometry3d> sixPoses(const BoardParams& board, int variant)
 {
   const double d = 0.02 * variant;
   return {sls_test::boardPoseFacing(board, 1.20 + d, 0.30, 0.10, 0.05),
@@ -148,7 +148,7 @@ TEST(ProjectorJointFit, CentralProjectorFromSixTiltedViews)
 {
   const CameraModel cam = CameraModel::studyDesign();
   const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
-  const ChessboardParams board;
+  const BoardParams board;
   for (int variant : {0, 1})
   {
     const uint32_t seed0 = variant == 0 ? 1 : 101;  // 101+: held out
@@ -192,7 +192,7 @@ TEST(ProjectorJointFit, BeamsWithoutACommonCentreAreDetected)
   std::uniform_real_distribution<double> u(-0.004, 0.004);
   for (BeamRay& r : truth.beams)
     r.origin += Eigen::Vector3d(u(rng), u(rng), 0.0);
-  const ChessboardParams board;
+  const BoardParams board;
   std::vector<JointFitView> views;
   const auto poses = sixPoses(board, 0);
   for (size_t v = 0; v < poses.size(); ++v)
@@ -223,7 +223,7 @@ TEST(ProjectorJointFit, OutliersAndANoisyViewDoNotMoveTheFit)
 {
   const CameraModel cam = CameraModel::studyDesign();
   const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
-  const ChessboardParams board;
+  const BoardParams board;
   const auto poses = sixPoses(board, 1);
   std::vector<JointFitView> clean, spoiled;
   std::vector<int> moved;
@@ -260,7 +260,7 @@ TEST(ProjectorJointFit, RefusalsNameTheProblem)
 {
   const CameraModel cam = CameraModel::studyDesign();
   const ProjectorCalibration truth = sls_test::simLikeProjector(0.087);
-  const ChessboardParams board;
+  const BoardParams board;
   const auto poses = sixPoses(board, 0);
   std::vector<JointFitView> one{syntheticView(cam, truth, board, poses[0], SyntheticViewOptions(), 1)};
   EXPECT_FALSE(fitProjectorJoint(cam, 10, 10, one).ok);

@@ -37,7 +37,7 @@ using namespace structured_light_stabilizer;
 
 struct ChessboardSceneParams
 {
-  ChessboardParams board;             // 10 x 8 inner corners of 8 cm by default
+  BoardParams board;             // 10 x 8 inner corners of 8 cm by default
   double white = 0.5, black = 0.03;  // reflectances of the print (black ~16x dimmer)
   double ambient_dn = 120.0;         // DN of the white print under the ambient light (0 = night)
   double dot_peak_dn = 150.0;        // peak DN a dot adds on the white print at 1.5 m, normal incidence
@@ -65,7 +65,7 @@ struct ChessboardSceneTruth
 // (the board's centre on the optical axis, shifted by `offset` in the camera
 // frame), tilted by `tilt_x`, `tilt_y` (rad, about the camera's x and y axes)
 // and rolled by `roll` about the optical axis.
-inline Eigen::Isometry3d boardPoseFacing(const ChessboardParams& b, double distance, double tilt_x, double tilt_y,
+inline Eigen::Isometry3d boardPoseFacing(const BoardParams& b, double distance, double tilt_x, double tilt_y,
                                          double roll = 0.0, const Eigen::Vector3d& offset = Eigen::Vector3d::Zero())
 {
   const Eigen::Vector3d centre(0.5 * (b.cols - 1) * b.square_m, 0.5 * (b.rows - 1) * b.square_m, 0.0);
@@ -84,7 +84,7 @@ namespace detail_board
 
 inline double albedoAt(const ChessboardSceneParams& p, double x, double y)
 {
-  const ChessboardParams& b = p.board;
+  const BoardParams& b = p.board;
   const double s = b.square_m, m = b.margin_m;
   const double beyond_m = 0.25;  // the rest of the plane: a mid-grey wall
   if (x < -s - m - beyond_m || y < -s - m - beyond_m || x > b.cols * s + m + beyond_m || y > b.rows * s + m + beyond_m)
