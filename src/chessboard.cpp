@@ -221,6 +221,7 @@ ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& came
     if ((k + 1) % params.cols != 0)
       pitch.push_back(std::hypot(found[k + 1].x - found[k].x, found[k + 1].y - found[k].y));
   const int half = std::max(3, std::min(10, static_cast<int>(std::lround(0.2 * detail::median(pitch)))));
+  det.corner_window_px = half;
   cv::cornerSubPix(img, found, cv::Size(half, half), cv::Size(-1, -1),
                    cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
   for (const cv::Point2f& p : found)

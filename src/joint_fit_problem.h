@@ -2,6 +2,7 @@
 // (projector_joint_fit.h gives the model). Not a public API.
 #pragma once
 
+#include <cmath>
 #include <vector>
 
 #include <Eigen/Core>
@@ -91,11 +92,14 @@ public:
   {
   }
 
+  // A dot's sigma: its own (from the dot fit) and in quadrature the floor
+  // (the centroid model's accuracy, which a bright dot's small statistical
+  // sigma does not include), times the view's scale.
   double dotSigma(int v, int j, const Weights& w) const
   {
     const auto& s = views_[v].dot_sigma_px;
-    const double own = s.empty() ? 0.05 : std::max(params_.min_sigma_px, s[j]);
-    return w.dot_scale[v] * own;
+    const double own = s.empty() ? 0.05 : s[j];
+    return w.dot_scale[v] * std::sqrt(own * own + params_.min_sigma_px * params_.min_sigma_px);
   }
 
   // Sum of squared normalised residuals of the observations in use.

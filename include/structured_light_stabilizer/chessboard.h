@@ -66,6 +66,7 @@ struct ChessboardDetection
   bool square00_white = true;        // colour of square (0, 0), measured
   double white_level = 0.0;          // median of the white squares' centres in the board image (DN)
   double black_level = 0.0;          // same for the black squares
+  int corner_window_px = 0;          // half-size of the sub-pixel refinement window
 };
 
 // Finds the chessboard in an 8-bit one-channel image (the channel with the
