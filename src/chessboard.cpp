@@ -206,7 +206,8 @@ ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& came
   // classic one with cornerSubPix is the fallback.
   bool ok = cv::findChessboardCornersSB(img, pattern, found, cv::CALIB_CB_NORMALIZE_IMAGE);
   if (!ok)
-    ok = cv::findChessboardCorners(img, pattern, found, cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE);
+    ok = cv::findChessboardCorners(img, pattern, found,
+                                   cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK);
   if (!ok || static_cast<int>(found.size()) != params.cornerCount())
   {
     det.why = "no chessboard of " + std::to_string(params.cols) + "x" + std::to_string(params.rows) +

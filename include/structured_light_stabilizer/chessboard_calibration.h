@@ -105,4 +105,9 @@ struct ChessboardCalibrationResult
 ChessboardCalibrationResult calibrateFromChessboardViews(const CameraModel& camera, std::vector<ChessboardView> views,
                                                          const ChessboardCalibrationParams& params);
 
+// The report as a picture (bgr8, 1240 x 620): the RMS residual of every
+// beam at its place in the pattern, and the fitted rays with the boards
+// seen from above; a failed calibration gives its error.
+cv::Mat drawCalibrationReport(const ChessboardCalibrationResult& result, const BoardParams& board);
+
 }  // namespace structured_light_stabilizer
