@@ -379,8 +379,38 @@ cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& pa
 cv::Mat renderBoardAlbedo(const CameraModel& camera, const BoardParams& params, const Eigen::Isometry3d& pose,
                           bool square00_white, double black_ratio, const cv::Size& size, int edge_samples)
 {
-  return renderBoardAlbedoWindow(camera, params, pose, square00_white, black_ratio,
-                                 cv::Rect(0, 0, size.width, size.height), 1, edge_samples);
+  // Only the pixels of the print's image (its border sampled densely, since
+  // lens distortion bends it) are rendered; the rest is NaN.
+  const double s = params.square_m, m = params.margin_m;
+  const double x0 = -s - m, y0 = -s - m, x1 = params.cols * s + m, y1 = params.rows * s + m;
+  double u0 = size.width, v0 = size.height, u1 = -1.0, v1 = -1.0;
+  for (int k = 0; k <= 64; ++k)
+  {
+    const double f = k / 64.0;
+    for (const Eigen::Vector3d& b : {Eigen::Vector3d(x0 + f * (x1 - x0), y0, 0), Eigen::Vector3d(x0 + f * (x1 - x0), y1, 0),
+                                     Eigen::Vector3d(x0, y0 + f * (y1 - y0), 0), Eigen::Vector3d(x1, y0 + f * (y1 - y0), 0)})
+    {
+      const cv::Point2d p = camera.project(pose * b);
+      if (!std::isfinite(p.x))
+      {
+        u0 = v0 = 0.0;  // part of the print behind the camera: render everything
+        u1 = size.width;
+        v1 = size.height;
+        continue;
+      }
+      u0 = std::min(u0, p.x);
+      v0 = std::min(v0, p.y);
+      u1 = std::max(u1, p.x);
+      v1 = std::max(v1, p.y);
+    }
+  }
+  const cv::Rect box = cv::Rect(cv::Point(static_cast<int>(std::floor(u0)) - 2, static_cast<int>(std::floor(v0)) - 2),
+                                cv::Point(static_cast<int>(std::ceil(u1)) + 3, static_cast<int>(std::ceil(v1)) + 3)) &
+                       cv::Rect(0, 0, size.width, size.height);
+  cv::Mat out(size, CV_32F, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+  if (box.area() > 0)
+    renderBoardAlbedoWindow(camera, params, pose, square00_white, black_ratio, box, 1, edge_samples).copyTo(out(box));
+  return out;
 }
 
 }  // namespace structured_light_stabilizer

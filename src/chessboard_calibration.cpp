@@ -175,7 +175,8 @@ ChessboardView analyseChessboardView(const cv::Mat& image, const std::string& na
     view.board.corner_rms_px = rms;
     det.pose = pose;
     if (moved > 0.01)
-      view.dots = findBoardDots(dot_img, fullScale(image), camera, params.board, det, params.dots, &view.dot_report);
+      view.dots = refitBoardDots(dot_img, fullScale(image), camera, params.board, det, params.dots, view.dots,
+                                 &view.dot_report);
   }
   labelView(camera, params, &view);
   return view;

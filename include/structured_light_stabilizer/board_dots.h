@@ -65,6 +65,7 @@ struct BoardDot
   double sigma_xy_px = 0.0;  // 1-sigma uncertainty of the centre from the fit (per axis, RMS of the two)
   double sigma_px = 0.0;     // footprint size: sqrt of the mean eigenvalue of S
   double amplitude = 0.0;    // peak DN on white
+  double ambient_dn = 0.0;   // ambient light on white at the dot (DN)
   double snr = 0.0;          // candidate peak over the noise
   double fit_rms = 0.0;      // RMS residual of the window fit over its noise (about 1 for a clean dot)
   int clipped = 0;           // clipped pixels left out
@@ -79,6 +80,7 @@ struct BoardDotReport
   double psf_sigma_px = 0.0;  // used
   double noise_dn = 0.0;        // robust noise of the smoothed dot light on white squares (DN)
   double noise_black_dn = 0.0;  // same on black squares
+  double pixel_noise_dn = 0.0;  // robust noise of one pixel of the dot channel
   int candidates = 0;         // peaks above min_snr
   int rejected = 0;           // candidates whose fit failed or that lie beyond the print
 };
@@ -89,5 +91,14 @@ struct BoardDotReport
 std::vector<BoardDot> findBoardDots(const cv::Mat& dots, double full_scale, const CameraModel& camera,
                                     const BoardParams& board, const ChessboardDetection& detection,
                                     const BoardDotParams& params, BoardDotReport* report);
+
+// The same dots fitted again on a refined pose of the board (the blur, the
+// black ratio and the noise of `report`, which must come from the
+// findBoardDots of `previous`, are kept); dots whose fit fails are dropped.
+// Cheaper than findBoardDots: no maps of the whole image.
+std::vector<BoardDot> refitBoardDots(const cv::Mat& dots, double full_scale, const CameraModel& camera,
+                                     const BoardParams& board, const ChessboardDetection& detection,
+                                     const BoardDotParams& params, const std::vector<BoardDot>& previous,
+                                     BoardDotReport* report);
 
 }  // namespace structured_light_stabilizer
