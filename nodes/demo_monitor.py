@@ -22,9 +22,15 @@ as warm-up, not as dropped; frames still in flight at the end are not counted.
 
 The cumulative figures are published on ~stats (diagnostic_msgs/DiagnosticStatus)
 and written as YAML to ~stats_file at exit, for the demo rostest.
+
+End: after ~duration seconds the monitor prints the summary ("demo over ...")
+and, when roslaunch started it, ends the launch as Ctrl-C would (SIGINT to
+roslaunch): a clean exit with status 0, not a "REQUIRED process has died".
 """
 import collections
 import math
+import os
+import signal
 import threading
 
 import numpy as np
@@ -291,7 +297,21 @@ class Monitor:
         rospy.loginfo("demo over after %.0f s: %s", self.duration,
                       ", ".join("%s=%.4g" % (k, v) for k, v in total.items()))
         self.finished = True
+        end_launch()
         rospy.signal_shutdown("duration reached")
+
+
+def end_launch():
+    """SIGINT to the roslaunch that started this node, if one did (not a
+    rostest, not a shell): the launch then shuts down as on Ctrl-C."""
+    parent = os.getppid()
+    try:
+        with open("/proc/%d/cmdline" % parent, "rb") as f:
+            argv = [a.decode(errors="replace") for a in f.read().split(b"\0") if a]
+    except OSError:
+        return
+    if any(os.path.basename(a) == "roslaunch" for a in argv[:2]):
+        os.kill(parent, signal.SIGINT)
 
 
 if __name__ == "__main__":

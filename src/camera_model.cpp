@@ -16,7 +16,89 @@ double coeff(const std::vector<double>& D, size_t i)
 {
   return i < D.size() ? D[i] : 0.0;
 }
+
+// The joined "a; b; c" of the reasons collected in `why`.
+std::string reasons(const std::ostringstream& why)
+{
+  std::string s = why.str();
+  if (s.size() >= 2)
+    s.resize(s.size() - 2);
+  return s;
+}
+
+// Brown-Conrady radial and tangential terms shared by plumb_bob and
+// rational_polynomial (OpenCV's projectPoints); `radial` is the model's
+// radial factor. Thin prism terms (s1..s4) when D has 12 values.
+Eigen::Vector2d brownConrady(const Eigen::Vector2d& xy, double r2, double radial, const std::vector<double>& D)
+{
+  const double x = xy.x(), y = xy.y();
+  const double p1 = coeff(D, 2), p2 = coeff(D, 3);
+  Eigen::Vector2d out(x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+                      y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y);
+  if (D.size() >= 12)
+  {
+    out.x() += r2 * (coeff(D, 8) + r2 * coeff(D, 9));
+    out.y() += r2 * (coeff(D, 10) + r2 * coeff(D, 11));
+  }
+  return out;
+}
 }  // namespace
+
+// ---- SensorWindow
+
+bool SensorWindow::isFullSensor(int sensor_width, int sensor_height) const
+{
+  return binning_x == 1 && binning_y == 1 &&
+         roi(sensor_width, sensor_height) == cv::Rect(0, 0, sensor_width, sensor_height);
+}
+
+std::string SensorWindow::validate(int sensor_width, int sensor_height) const
+{
+  std::ostringstream why;
+  if (binning_x < 1 || binning_y < 1)
+    why << "binning " << binning_x << "x" << binning_y << " must be at least 1x1; ";
+  if (x_offset < 0 || y_offset < 0 || width < 0 || height < 0)
+    why << "ROI offsets and size must not be negative; ";
+  else if ((width == 0) != (height == 0) || (width == 0 && (x_offset != 0 || y_offset != 0)))
+    why << "ROI width and height must both be set (0 for both, with zero offsets, is the whole sensor); ";
+  else
+  {
+    const cv::Rect r = roi(sensor_width, sensor_height);
+    if (r.x + r.width > sensor_width || r.y + r.height > sensor_height)
+      why << "ROI " << r.width << "x" << r.height << "+" << r.x << "+" << r.y << " exceeds the " << sensor_width << "x"
+          << sensor_height << " sensor; ";
+    else if (binning_x >= 1 && binning_y >= 1 && (r.width < binning_x || r.height < binning_y))
+      why << "ROI " << r.width << "x" << r.height << " is smaller than one binned pixel; ";
+  }
+  return reasons(why);
+}
+
+cv::Rect SensorWindow::roi(int sensor_width, int sensor_height) const
+{
+  if (width == 0 && height == 0)
+    return {0, 0, sensor_width, sensor_height};
+  return {x_offset, y_offset, width, height};
+}
+
+cv::Size SensorWindow::imageSize(int sensor_width, int sensor_height) const
+{
+  const cv::Rect r = roi(sensor_width, sensor_height);
+  return {r.width / std::max(1, binning_x), r.height / std::max(1, binning_y)};
+}
+
+cv::Point2d SensorWindow::toImage(const cv::Point2d& full) const
+{
+  return {(full.x - x_offset - (binning_x - 1) * 0.5) / binning_x,
+          (full.y - y_offset - (binning_y - 1) * 0.5) / binning_y};
+}
+
+cv::Point2d SensorWindow::toFull(const cv::Point2d& image) const
+{
+  return {binning_x * image.x + (binning_x - 1) * 0.5 + x_offset,
+          binning_y * image.y + (binning_y - 1) * 0.5 + y_offset};
+}
+
+// ---- CameraModel
 
 CameraModel CameraModel::studyDesign()
 {
@@ -58,13 +140,14 @@ std::string CameraModel::validate() const
     }
   }
   if (distortion == DistortionModel::kEquidistant && D.size() != 4)
-    why << "equidistant distortion needs 4 coefficients, got " << D.size() << "; ";
+    why << "equidistant distortion needs 4 coefficients (k1 k2 k3 k4), got " << D.size() << "; ";
   if (distortion == DistortionModel::kPlumbBob && D.size() != 5 && D.size() != 4)
-    why << "plumb_bob distortion needs 5 coefficients, got " << D.size() << "; ";
-  std::string s = why.str();
-  if (s.size() >= 2)
-    s.resize(s.size() - 2);
-  return s;
+    why << "plumb_bob distortion needs 5 coefficients (k1 k2 p1 p2 k3), got " << D.size() << "; ";
+  if (distortion == DistortionModel::kRationalPolynomial && D.size() != 8 && D.size() != 12)
+    why << "rational_polynomial distortion needs 8 coefficients (k1 k2 p1 p2 k3 k4 k5 k6; 12 with the thin "
+           "prism s1..s4), got "
+        << D.size() << "; ";
+  return reasons(why);
 }
 
 bool CameraModel::hasDistortion() const
@@ -77,20 +160,42 @@ bool CameraModel::hasDistortion() const
   return false;
 }
 
+CameraModel CameraModel::windowed(const SensorWindow& window) const
+{
+  CameraModel m = *this;
+  const double bx = std::max(1, window.binning_x), by = std::max(1, window.binning_y);
+  m.fx = fx / bx;
+  m.fy = fy / by;
+  // The principal point is a pixel position: moved like any pixel.
+  const cv::Point2d c = window.toImage({cx, cy});
+  m.cx = c.x;
+  m.cy = c.y;
+  const cv::Size size = window.imageSize(width, height);
+  m.width = size.width;
+  m.height = size.height;
+  return m;
+}
+
 Eigen::Vector2d CameraModel::distortNormalized(const Eigen::Vector2d& xy) const
 {
-  const double x = xy.x(), y = xy.y();
+  const double r2 = xy.squaredNorm();
   if (distortion == DistortionModel::kPlumbBob)
   {
-    const double k1 = coeff(D, 0), k2 = coeff(D, 1), p1 = coeff(D, 2), p2 = coeff(D, 3), k3 = coeff(D, 4);
-    const double r2 = x * x + y * y;
-    const double radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-    return {x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y};
+    const double radial = 1.0 + r2 * (coeff(D, 0) + r2 * (coeff(D, 1) + r2 * coeff(D, 4)));
+    return brownConrady(xy, r2, radial, D);
+  }
+  if (distortion == DistortionModel::kRationalPolynomial)
+  {
+    const double num = 1.0 + r2 * (coeff(D, 0) + r2 * (coeff(D, 1) + r2 * coeff(D, 4)));
+    const double den = 1.0 + r2 * (coeff(D, 5) + r2 * (coeff(D, 6) + r2 * coeff(D, 7)));
+    // A denominator through zero folds the image: no pixel there.
+    if (!(den > 0.0))
+      return {detail::kNaN, detail::kNaN};
+    return brownConrady(xy, r2, num / den, D);
   }
   if (distortion == DistortionModel::kEquidistant)
   {
-    const double r = std::sqrt(x * x + y * y);
+    const double r = std::sqrt(r2);
     if (r < 1e-12)
       return xy;
     const double th = std::atan(r);
@@ -131,6 +236,11 @@ Eigen::Vector2d CameraModel::normalize(const cv::Point2d& pixel) const
       break;
     u -= J.inverse() * r;
   }
+  // Not converged (outside the region where the lens model is invertible,
+  // e.g. beyond a rational model's fold): no ray rather than a wrong one.
+  // 1e-8 in normalised units is 1e-5 px at f = 1000 px.
+  if (!((distortNormalized(u) - distorted).norm() < 1e-8))
+    return {detail::kNaN, detail::kNaN};
   return u;
 }
 
@@ -146,6 +256,8 @@ bool CameraModel::parseDistortionModel(const std::string& name, DistortionModel*
     *model = DistortionModel::kNone;
   else if (name == "plumb_bob")
     *model = DistortionModel::kPlumbBob;
+  else if (name == "rational_polynomial")
+    *model = DistortionModel::kRationalPolynomial;
   else if (name == "equidistant" || name == "fisheye")
     *model = DistortionModel::kEquidistant;
   else
@@ -161,6 +273,8 @@ std::string CameraModel::distortionModelName(DistortionModel model)
       return "plumb_bob";
     case DistortionModel::kEquidistant:
       return "equidistant";
+    case DistortionModel::kRationalPolynomial:
+      return "rational_polynomial";
     default:
       return "plumb_bob";
   }

@@ -2,7 +2,8 @@
 // a frame source (frame_source.h: the built-in simulator, a V4L2 device, a
 // video file or a folder of images; docs/interface.md, docs/simulator.md).
 // This file keeps what is common to every source: pacing at ~rate, stamps,
-// camera_info, publishing, diagnostics and the one retry policy. One worker
+// camera_info, the sensor window (binning, ROI), publishing in the encoding
+// the source gives, diagnostics and the one retry policy. One worker
 // thread acquires and publishes; it is joined in the destructor. Every
 // failure of a source is logged (throttled) with what to fix and retried;
 // nothing here may take the manager down.
@@ -25,6 +26,7 @@
 #include "structured_light_stabilizer/CameraDriverConfig.h"
 #include "frame_source.h"
 #include "nodelet_base.h"
+#include "param_reader.h"
 
 namespace structured_light_stabilizer
 {
@@ -47,6 +49,7 @@ private:
 
   void onInit() override;
   void readParams();
+  void readWindowParams();
   void loadCameraInfoUrl();
   SourceContext sourceContext();
   void configCb(Config& config, uint32_t level);
@@ -56,8 +59,9 @@ private:
   void run();
   bool openSource();
   GrabResult tick(double rate);
-  void publishFrame(const std_msgs::Header& header, const Frame& frame);
+  bool publishFrame(const std_msgs::Header& header, const Frame& frame, std::string* why);
   sensor_msgs::CameraInfoPtr infoFor(const std_msgs::Header& header, const cv::Mat& image);
+  void setWindow(sensor_msgs::CameraInfo* info) const;
   bool acquisitionStamp(ros::Time* stamp);
   void reportProblem(const std::string& why, const char* suffix);
   void noteError(const std::string& what);
@@ -104,6 +108,7 @@ private:
   std::string source_name_, frame_id_, camera_info_url_, camera_name_;
   double rate_ = 30.0;  // Hz; under config_mutex_ once running
   bool calibrated_from_url_ = false;
+  SensorWindow window_;  // ~binning_x/y, ~roi_*: what part of each frame is published
 
   std::unique_ptr<image_transport::ImageTransport> it_;
   image_transport::CameraPublisher pub_camera_;
@@ -122,6 +127,7 @@ private:
   double processing_ms_ = 0.0;
   double mean_period_s_ = 0.0;  // rendered sources: running mean of the publish period
   cv::Size last_size_;
+  std::string last_encoding_;
   DropLog problem_log_{10.0};  // source failures and unusable camera_info, per kind
 
   // Worker thread only: the publish period of a rendered source is measured
@@ -188,6 +194,29 @@ void CameraDriverNodelet::readParams()
     rate_ = 30.0;
     pnh.setParam("rate", rate_);
   }
+  readWindowParams();
+}
+
+// The sensor window, as a camera driver with binning and ROI settings has
+// it (names of sensor_msgs/CameraInfo): each frame is cut to the ROI and
+// binned before it is published; camera_info keeps the full sensor's K and
+// says binning and ROI (REP 104). Checked against each frame's size.
+void CameraDriverNodelet::readWindowParams()
+{
+  const ParamReader read(getPrivateNodeHandle(),
+                         [this](const std::string& m) { NODELET_ERROR("CameraDriver: %s", m.c_str()); });
+  read.integer("binning_x", &window_.binning_x);
+  read.integer("binning_y", &window_.binning_y);
+  read.integer("roi_x_offset", &window_.x_offset);
+  read.integer("roi_y_offset", &window_.y_offset);
+  read.integer("roi_width", &window_.width);
+  read.integer("roi_height", &window_.height);
+  // CameraInfo's convention: binning 0 means none.
+  window_.binning_x = std::max(1, window_.binning_x);
+  window_.binning_y = std::max(1, window_.binning_y);
+  if (window_.binning_x > 1 || window_.binning_y > 1 || window_.width > 0 || window_.height > 0)
+    NODELET_INFO("CameraDriver: publishing the ROI %dx%d+%d+%d (0x0: the whole frame) binned %dx%d", window_.width,
+                 window_.height, window_.x_offset, window_.y_offset, window_.binning_x, window_.binning_y);
 }
 
 void CameraDriverNodelet::loadCameraInfoUrl()
@@ -223,6 +252,7 @@ SourceContext CameraDriverNodelet::sourceContext()
   ctx.stamp = [this](ros::Time* stamp) { return acquisitionStamp(stamp); };
   ctx.image_subscribers = [this] { return pub_camera_.getNumSubscribers(); };
   ctx.camera_info_url = camera_info_url_;
+  ctx.window = window_;
   if (calibrated_from_url_)
     ctx.url_calibration = std::make_shared<const sensor_msgs::CameraInfo>(camera_info_manager_->getCameraInfo());
   return ctx;
@@ -331,7 +361,12 @@ GrabResult CameraDriverNodelet::tick(double rate)
     std_msgs::Header header;
     header.stamp = frame.stamp;
     header.frame_id = frame_id_;
-    publishFrame(header, frame);
+    std::string why;
+    if (!publishFrame(header, frame, &why))
+    {
+      consecutive_ = false;
+      return {GrabStatus::kSkip, why};
+    }
     source_->published(header);
     if (source_->rendered())
     {
@@ -350,8 +385,13 @@ GrabResult CameraDriverNodelet::tick(double rate)
   }
 }
 
-void CameraDriverNodelet::publishFrame(const std_msgs::Header& header, const Frame& frame)
+// Publishes the frame (through the sensor window) in the encoding the
+// source gave; false with *why when the window does not fit it.
+bool CameraDriverNodelet::publishFrame(const std_msgs::Header& header, const Frame& frame, std::string* why)
 {
+  cv::Mat image;
+  if (!applyWindow(frame.image, frame.encoding, window_, &image, why))
+    return false;
   sensor_msgs::CameraInfoPtr info;
   if (const sensor_msgs::CameraInfo* own = source_->cameraInfo())
   {
@@ -360,12 +400,30 @@ void CameraDriverNodelet::publishFrame(const std_msgs::Header& header, const Fra
   }
   else
     info = infoFor(header, frame.image);
-  pub_camera_.publish(cv_bridge::CvImage(header, frame.encoding, frame.image).toImageMsg(), info);
+  setWindow(info.get());
+  pub_camera_.publish(cv_bridge::CvImage(header, frame.encoding, image).toImageMsg(), info);
   frequency_->tick();
   std::lock_guard<std::mutex> lock(status_mutex_);
   ++frames_published_;
   processing_ms_ = frame.processing_ms;
-  last_size_ = cv::Size(frame.image.cols, frame.image.rows);
+  last_size_ = cv::Size(image.cols, image.rows);
+  last_encoding_ = frame.encoding;
+  return true;
+}
+
+// binning_x/y and roi of the published camera_info (its K, D, width and
+// height stay the full sensor's).
+void CameraDriverNodelet::setWindow(sensor_msgs::CameraInfo* info) const
+{
+  if (window_.isFullSensor(static_cast<int>(info->width), static_cast<int>(info->height)))
+    return;
+  const cv::Rect roi = window_.roi(static_cast<int>(info->width), static_cast<int>(info->height));
+  info->binning_x = static_cast<uint32_t>(window_.binning_x);
+  info->binning_y = static_cast<uint32_t>(window_.binning_y);
+  info->roi.x_offset = static_cast<uint32_t>(roi.x);
+  info->roi.y_offset = static_cast<uint32_t>(roi.y);
+  info->roi.width = static_cast<uint32_t>(roi.width);
+  info->roi.height = static_cast<uint32_t>(roi.height);
 }
 
 // camera_info for a frame of a real source: the loaded calibration when it
@@ -460,6 +518,7 @@ void CameraDriverNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& 
   stat.add("frame_id", frame_id_);
   stat.add("frames published", frames_published_);
   stat.add("image size", std::to_string(last_size_.width) + "x" + std::to_string(last_size_.height));
+  stat.add("encoding", last_encoding_);
   stat.add(rendered ? "render time (ms)" : "acquisition time (ms)", processing_ms_);
   stat.add("camera_info",
            calibrated_from_url_ ? camera_info_url_ : (source_->cameraInfo() ? "simulator" : "uncalibrated"));

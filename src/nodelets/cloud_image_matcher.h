@@ -1,17 +1,29 @@
 // Pairs each points cloud with the camera image of the same stamp, for the
-// PoseDelta nodelet's texture part. Images wait in a short buffer; a cloud
-// whose image has not come yet waits too (at most 3 clouds, 0.5 s of stamps);
-// a cloud whose image was dropped upstream, or that waited too long, goes on
-// alone (geometry only). Per-topic delivery is in order, so an image newer
-// than a waiting cloud means that cloud's image will never come.
+// PoseDelta nodelet's texture part, with message_filters' ExactTime policy.
+// A cloud whose image was dropped upstream goes on alone (geometry only) as
+// soon as a later cloud finds its image (ExactTime's drop signal), or when
+// the queue of unmatched stamps overflows (images stopped: each cloud then
+// waits for the queue size, none is lost while clouds keep coming). A cloud
+// never goes on without waiting for its image, even when it arrives first
+// after a long silence: the reference must be locked with its image.
 //
-// Not thread-safe: the nodelet calls it under its buffer mutex, and `emit`
-// runs inside the calls, in stamp order.
+// Order: ExactTime signals a match before it drops the older, unmatched
+// stamps. The signals are only collected during each add; they are then
+// emitted sorted by stamp, so `emit` sees the clouds in stamp order (what
+// frame_to_frame tracking needs).
+//
+// Not thread-safe: the nodelet calls it under its buffer mutex; `emit` runs
+// inside addImage()/addCloud().
 #pragma once
 
-#include <deque>
+#include <algorithm>
 #include <functional>
+#include <memory>
+#include <utility>
+#include <vector>
 
+#include <message_filters/sync_policies/exact_time.h>
+#include <message_filters/synchronizer.h>
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 
@@ -26,66 +38,72 @@ public:
   // A cloud and its image (null: none, process the geometry alone).
   using Emit = std::function<void(const CloudPtr&, const ImagePtr&)>;
 
-  void setImageQueueSize(int size) { image_queue_size_ = size; }
+  CloudImageMatcher() { reset(); }
+
+  // Unmatched stamps kept (clouds waiting for their image, images for their
+  // cloud); at least 2. Forgets what is queued.
+  void setImageQueueSize(int size)
+  {
+    queue_size_ = std::max(2, size);
+    reset();
+  }
 
   void addImage(const ImagePtr& image, const Emit& emit)
   {
-    images_.push_back(image);
-    while (static_cast<int>(images_.size()) > image_queue_size_)
-      images_.pop_front();
-    // Clouds waiting for this image, or for an image that will never come.
-    while (!pending_.empty())
-    {
-      const CloudPtr cloud = pending_.front();
-      if (cloud->header.stamp > image->header.stamp)
-        break;
-      pending_.pop_front();
-      emit(cloud, cloud->header.stamp == image->header.stamp ? image : nullptr);
-    }
+    sync_->add<1>(image);
+    flush(emit);
   }
 
   // `with_images`: false while no images come by design (texture off or not
   // subscribed): the cloud goes on alone at once.
   void addCloud(const CloudPtr& cloud, bool with_images, const Emit& emit)
   {
-    // Images stopped (or never came): do not hold clouds back for long.
-    while (!pending_.empty() && (cloud->header.stamp - pending_.front()->header.stamp).toSec() > 0.5)
-    {
-      emit(pending_.front(), nullptr);
-      pending_.pop_front();
-    }
     if (!with_images)
     {
       emit(cloud, nullptr);
       return;
     }
-    for (auto it = images_.rbegin(); it != images_.rend(); ++it)
-    {
-      if ((*it)->header.stamp == cloud->header.stamp)
-      {
-        emit(cloud, *it);
-        return;
-      }
-    }
-    if (!images_.empty() && images_.back()->header.stamp > cloud->header.stamp)
-    {
-      emit(cloud, nullptr);  // its image was dropped upstream
-      return;
-    }
-    pending_.push_back(cloud);
-    while (pending_.size() > 3)
-    {
-      emit(pending_.front(), nullptr);
-      pending_.pop_front();
-    }
+    sync_->add<0>(cloud);
+    flush(emit);
   }
 
-  void clearImages() { images_.clear(); }
+  // Images stop (texture off, unsubscribed): forget the queue; the clouds
+  // still in it (at most the queue size) get no pose.
+  void clearImages() { reset(); }
 
 private:
-  int image_queue_size_ = 5;
-  std::deque<ImagePtr> images_;
-  std::deque<CloudPtr> pending_;
+  using Policy = message_filters::sync_policies::ExactTime<sensor_msgs::PointCloud2, sensor_msgs::Image>;
+
+  void reset()
+  {
+    ready_.clear();
+    sync_.reset(new message_filters::Synchronizer<Policy>(Policy(queue_size_)));
+    sync_->registerCallback(&CloudImageMatcher::collect, this);
+    sync_->getPolicy()->registerDropCallback(&CloudImageMatcher::collect, this);
+  }
+
+  // Matched pairs and dropped tuples alike; an image without its cloud is
+  // of no use.
+  void collect(const CloudPtr& cloud, const ImagePtr& image)
+  {
+    if (cloud)
+      ready_.emplace_back(cloud, image);
+  }
+
+  void flush(const Emit& emit)
+  {
+    std::stable_sort(ready_.begin(), ready_.end(),
+                     [](const Pair& a, const Pair& b) { return a.first->header.stamp < b.first->header.stamp; });
+    std::vector<Pair> ready;
+    ready.swap(ready_);
+    for (const Pair& p : ready)
+      emit(p.first, p.second);
+  }
+
+  using Pair = std::pair<CloudPtr, ImagePtr>;
+  int queue_size_ = 5;
+  std::unique_ptr<message_filters::Synchronizer<Policy>> sync_;
+  std::vector<Pair> ready_;
 };
 
 }  // namespace structured_light_stabilizer

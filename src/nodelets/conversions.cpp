@@ -1,61 +1,76 @@
 #include "conversions.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
+#include <geometry_msgs/TransformStamped.h>
 #include <sensor_msgs/point_cloud2_iterator.h>
+#include <tf2_eigen/tf2_eigen.h>
 
 namespace structured_light_stabilizer
 {
 
 bool cameraModelFromInfo(const sensor_msgs::CameraInfo& info, CameraModel* model, std::string* error)
 {
-  CameraModel m;
-  m.width = static_cast<int>(info.width);
-  m.height = static_cast<int>(info.height);
-  m.fx = info.K[0];
-  m.fy = info.K[4];
-  m.cx = info.K[2];
-  m.cy = info.K[5];
-  if (!CameraModel::parseDistortionModel(info.distortion_model, &m.distortion))
+  CameraModel full;
+  full.width = static_cast<int>(info.width);
+  full.height = static_cast<int>(info.height);
+  full.fx = info.K[0];
+  full.fy = info.K[4];
+  full.cx = info.K[2];
+  full.cy = info.K[5];
+  if (!CameraModel::parseDistortionModel(info.distortion_model, &full.distortion))
   {
-    *error = "unsupported distortion_model '" + info.distortion_model + "' (plumb_bob or equidistant)";
+    *error =
+        "unsupported distortion_model '" + info.distortion_model + "' (plumb_bob, rational_polynomial or equidistant)";
     return false;
   }
-  m.D = info.D;
-  if (m.distortion == DistortionModel::kNone && !m.D.empty())
+  full.D = info.D;
+  if (full.distortion == DistortionModel::kNone &&
+      std::any_of(full.D.begin(), full.D.end(), [](double d) { return d != 0.0; }))
   {
-    bool all_zero = true;
-    for (double d : m.D)
-      all_zero = all_zero && d == 0.0;
-    if (!all_zero)
-    {
-      *error = "camera_info has distortion coefficients but no distortion_model";
-      return false;
-    }
-  }
-  if (info.binning_x > 1 || info.binning_y > 1)
-  {
-    *error = "camera_info binning " + std::to_string(info.binning_x) + "x" + std::to_string(info.binning_y) +
-             " is not supported (publish full-resolution images)";
+    *error = "camera_info has distortion coefficients but no distortion_model";
     return false;
   }
-  if (info.roi.width != 0 || info.roi.height != 0 || info.roi.x_offset != 0 || info.roi.y_offset != 0)
-  {
-    *error = "camera_info ROI is not supported (publish full-frame images)";
-    return false;
-  }
-  const std::string why = m.validate();
+  std::string why = full.validate();
   if (!why.empty())
   {
     *error = "camera_info unusable: " + why;
     return false;
   }
-  *model = m;
+  // All-zero coefficients are no distortion whatever the model's name: one
+  // camera, one model (a consumer that compares models sees no change).
+  if (!full.hasDistortion())
+  {
+    full.distortion = DistortionModel::kNone;
+    full.D.clear();
+  }
+  const SensorWindow window = sensorWindowFromInfo(info);
+  why = window.validate(full.width, full.height);
+  if (!why.empty())
+  {
+    *error = "camera_info binning/ROI unusable: " + why;
+    return false;
+  }
+  *model = full.windowed(window);
   return true;
 }
 
-sensor_msgs::CameraInfo cameraInfoFromModel(const CameraModel& model, const std_msgs::Header& header)
+SensorWindow sensorWindowFromInfo(const sensor_msgs::CameraInfo& info)
+{
+  SensorWindow w;
+  w.binning_x = std::max<int>(1, static_cast<int>(info.binning_x));
+  w.binning_y = std::max<int>(1, static_cast<int>(info.binning_y));
+  w.x_offset = static_cast<int>(info.roi.x_offset);
+  w.y_offset = static_cast<int>(info.roi.y_offset);
+  w.width = static_cast<int>(info.roi.width);
+  w.height = static_cast<int>(info.roi.height);
+  return w;
+}
+
+sensor_msgs::CameraInfo cameraInfoFromModel(const CameraModel& model, const std_msgs::Header& header,
+                                            const SensorWindow& window)
 {
   sensor_msgs::CameraInfo info;
   info.header = header;
@@ -63,11 +78,21 @@ sensor_msgs::CameraInfo cameraInfoFromModel(const CameraModel& model, const std_
   info.height = static_cast<uint32_t>(model.height);
   info.distortion_model = CameraModel::distortionModelName(model.distortion);
   info.D = model.D;
-  if (info.D.empty() && model.distortion != DistortionModel::kEquidistant)
+  if (info.D.empty() && (model.distortion == DistortionModel::kNone || model.distortion == DistortionModel::kPlumbBob))
     info.D.assign(5, 0.0);
   info.K = {model.fx, 0, model.cx, 0, model.fy, model.cy, 0, 0, 1};
   info.R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
   info.P = {model.fx, 0, model.cx, 0, 0, model.fy, model.cy, 0, 0, 0, 1, 0};
+  if (!window.isFullSensor(model.width, model.height))
+  {
+    info.binning_x = static_cast<uint32_t>(window.binning_x);
+    info.binning_y = static_cast<uint32_t>(window.binning_y);
+    const cv::Rect roi = window.roi(model.width, model.height);
+    info.roi.x_offset = static_cast<uint32_t>(roi.x);
+    info.roi.y_offset = static_cast<uint32_t>(roi.y);
+    info.roi.width = static_cast<uint32_t>(roi.width);
+    info.roi.height = static_cast<uint32_t>(roi.height);
+  }
   return info;
 }
 
@@ -187,26 +212,41 @@ void spotsToMsg(const Spots& spots, CentroidArray* msg)
 
 geometry_msgs::Transform transformFromIsometry(const Eigen::Isometry3d& T)
 {
-  geometry_msgs::Transform out;
-  out.translation.x = T.translation().x();
-  out.translation.y = T.translation().y();
-  out.translation.z = T.translation().z();
-  const Eigen::Quaterniond q(T.rotation());
-  out.rotation.x = q.x();
-  out.rotation.y = q.y();
-  out.rotation.z = q.z();
-  out.rotation.w = q.w();
-  return out;
+  return tf2::eigenToTransform(T).transform;
 }
 
 Eigen::Isometry3d isometryFromTransform(const geometry_msgs::Transform& T)
 {
-  Eigen::Quaterniond q(T.rotation.w, T.rotation.x, T.rotation.y, T.rotation.z);
-  if (!(q.norm() > 1e-9) || !std::isfinite(q.norm()))
-    q = Eigen::Quaterniond::Identity();
-  Eigen::Isometry3d out = Eigen::Isometry3d::Identity();
-  out.linear() = q.normalized().toRotationMatrix();
-  out.translation() = Eigen::Vector3d(T.translation.x, T.translation.y, T.translation.z);
+  const double n = std::sqrt(T.rotation.x * T.rotation.x + T.rotation.y * T.rotation.y + T.rotation.z * T.rotation.z +
+                             T.rotation.w * T.rotation.w);
+  geometry_msgs::TransformStamped stamped;
+  stamped.transform = T;
+  if (!(n > 1e-9) || !std::isfinite(n))
+  {
+    stamped.transform.rotation = geometry_msgs::Quaternion();
+    stamped.transform.rotation.w = 1.0;
+  }
+  else
+  {
+    stamped.transform.rotation.x /= n;
+    stamped.transform.rotation.y /= n;
+    stamped.transform.rotation.z /= n;
+    stamped.transform.rotation.w /= n;
+  }
+  return tf2::transformToEigen(stamped);
+}
+
+geometry_msgs::PoseWithCovariance currentPoseInReference(const Eigen::Isometry3d& T, const Matrix6d& covariance)
+{
+  geometry_msgs::PoseWithCovariance out;
+  out.pose = tf2::toMsg(Eigen::Isometry3d(T.inverse()));
+  Matrix6d J = Matrix6d::Zero();
+  const Eigen::Matrix3d Rt = T.linear().transpose();
+  J.topLeftCorner<3, 3>() = -Rt;
+  J.bottomRightCorner<3, 3>() = -Rt;
+  const Matrix6d C = J * covariance * J.transpose();
+  for (int i = 0; i < 36; ++i)
+    out.covariance[i] = C(i / 6, i % 6);
   return out;
 }
 

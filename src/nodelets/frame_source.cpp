@@ -4,6 +4,7 @@
 #include <cstdio>
 
 #include <opencv2/imgproc.hpp>
+#include <sensor_msgs/image_encodings.h>
 
 namespace structured_light_stabilizer
 {
@@ -51,8 +52,14 @@ std::unique_ptr<FrameSource> makeFrameSource(const std::string& name, const Sour
   return nullptr;
 }
 
-cv::Mat toBgr8(const cv::Mat& in)
+cv::Mat asPublished(const cv::Mat& in, std::string* encoding)
 {
+  if (in.type() == CV_8UC1 || in.type() == CV_16UC1)
+  {
+    *encoding = in.depth() == CV_8U ? "mono8" : "mono16";
+    return in;
+  }
+  *encoding = in.channels() == 1 ? "mono8" : "bgr8";
   if (in.type() == CV_8UC3)
     return in;
   cv::Mat eight = in;
@@ -64,14 +71,52 @@ cv::Mat toBgr8(const cv::Mat& in)
     const double scale = in.depth() == CV_16U ? 255.0 / 65535.0 : (hi > 0 ? 255.0 / hi : 1.0);
     in.convertTo(eight, CV_8U, scale);
   }
-  cv::Mat out;
-  if (eight.channels() == 1)
-    cv::cvtColor(eight, out, cv::COLOR_GRAY2BGR);
-  else if (eight.channels() == 4)
+  if (eight.channels() == 4)
+  {
+    cv::Mat out;
     cv::cvtColor(eight, out, cv::COLOR_BGRA2BGR);
+    return out;
+  }
+  if (eight.channels() == 2)  // grey + alpha (png)
+  {
+    cv::Mat grey;
+    cv::extractChannel(eight, grey, 0);
+    *encoding = "mono8";
+    return grey;
+  }
+  return eight;
+}
+
+bool applyWindow(const cv::Mat& full, const std::string& encoding, const SensorWindow& window, cv::Mat* out,
+                 std::string* why)
+{
+  if (window.isFullSensor(full.cols, full.rows))
+  {
+    *out = full;
+    return true;
+  }
+  *why = window.validate(full.cols, full.rows);
+  if (!why->empty())
+  {
+    *why = "the sensor window (~binning_x/y, ~roi_*) does not fit the " + std::to_string(full.cols) + "x" +
+           std::to_string(full.rows) + " frame: " + *why;
+    return false;
+  }
+  const bool mosaic = sensor_msgs::image_encodings::isBayer(encoding) || encoding == "yuv422" ||
+                      encoding == "yuv422_yuy2" || encoding == "uyvy" || encoding == "yuyv";
+  if (mosaic && (window.binning_x > 1 || window.binning_y > 1 || window.x_offset % 2 || window.y_offset % 2))
+  {
+    *why = "a " + encoding + " frame cannot be binned in software, nor cut at an odd offset (bin in the camera)";
+    return false;
+  }
+  const cv::Rect roi = window.roi(full.cols, full.rows);
+  const cv::Size size = window.imageSize(full.cols, full.rows);
+  const cv::Mat cut = full(cv::Rect(roi.x, roi.y, size.width * window.binning_x, size.height * window.binning_y));
+  if (window.binning_x == 1 && window.binning_y == 1)
+    *out = cut.clone();
   else
-    out = eight;
-  return out;
+    cv::resize(cut, *out, size, 0, 0, cv::INTER_AREA);  // integer factors: the mean of each block
+  return true;
 }
 
 std::string stringf(const char* format, ...)

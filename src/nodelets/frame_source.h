@@ -8,9 +8,10 @@
 //
 // Adding a source: one file frame_source_<name>.cpp with its class and its
 // make<Name>Source() (declared below), and one line in the table of
-// frame_source.cpp. Where the planned extensions go:
-// - publishing what the source gives (Bayer, mono8/16) instead of bgr8: the
-//   source fills Frame::encoding and stops calling toBgr8();
+// frame_source.cpp. What a source gives is published as it is (Frame::encoding:
+// bgr8, mono8, mono16, ...; asPublished() for what OpenCV reads); the driver
+// applies the sensor window (~binning_x/y, ~roi_*) to every source alike.
+// Where the planned extensions go:
 // - a strobed simulator (projector-off frames on camera/image_ambient): a
 //   Frame field naming the stream, routed in CameraDriverNodelet::publishFrame();
 // - an arm model driven by a velocity command topic: a subscriber that the
@@ -33,6 +34,7 @@
 #include <std_msgs/Header.h>
 
 #include "structured_light_stabilizer/CameraDriverConfig.h"
+#include "structured_light_stabilizer/camera_model.h"
 
 namespace structured_light_stabilizer
 {
@@ -55,12 +57,16 @@ struct SourceContext
   // ~camera_info_url and its intrinsics when they loaded with K != 0 (else null).
   std::string camera_info_url;
   std::shared_ptr<const sensor_msgs::CameraInfo> url_calibration;
+  // The part of each frame that is published, binned (~binning_x/y,
+  // ~roi_*; applyWindow()); a source that publishes pixel positions of its
+  // own (the simulator's ground truth) maps them with window.toImage().
+  SensorWindow window;
 };
 
 struct Frame
 {
   cv::Mat image;
-  std::string encoding = "bgr8";  // sensor_msgs/image_encodings name of `image`
+  std::string encoding = "bgr8";  // sensor_msgs/image_encodings name of `image` (full sensor, before the window)
   ros::Time stamp;                // acquisition time (SourceContext::stamp)
   double processing_ms = 0.0;     // render or acquisition time, for diagnostics
 };
@@ -123,8 +129,19 @@ bool isFrameSource(const std::string& name);
 // The source called `name`; null when unknown or when it cannot be set up.
 std::unique_ptr<FrameSource> makeFrameSource(const std::string& name, const SourceContext& ctx);
 
-// Whatever a capture or an image file gives (8/16-bit, 1/3/4 channels), as bgr8.
-cv::Mat toBgr8(const cv::Mat& in);
+// What a capture or an image file gives, ready to publish as it is where
+// sensor_msgs has an encoding the pipeline reads: 8-bit grey -> mono8, 16-bit
+// grey -> mono16, 8-bit 3 channels -> bgr8 (OpenCV's order); 4 channels lose
+// their alpha (bgr8); 16-bit colour is scaled full scale to full scale to
+// bgr8; other depths (signed, float) their maximum to 255 (mono8 or bgr8).
+cv::Mat asPublished(const cv::Mat& in, std::string* encoding);
+
+// The sensor window applied to a full frame: the ROI cut out, then each
+// binning_x x binning_y block averaged (a camera's digital binning; the
+// image keeps its depth and range). Bayer mosaics and packed YUV cannot be
+// binned that way: false with *why, as for a window that does not fit.
+bool applyWindow(const cv::Mat& full, const std::string& encoding, const SensorWindow& window, cv::Mat* out,
+                 std::string* why);
 
 // printf into a std::string (messages of the sources).
 std::string stringf(const char* format, ...) __attribute__((format(printf, 1, 2)));

@@ -69,7 +69,7 @@ public:
     if (!ctx_.stamp(&frame->stamp))
       return {GrabStatus::kSkip, ""};
     frame->processing_ms = millisecondsSince(t0);
-    frame->image = toBgr8(raw);
+    frame->image = asPublished(raw, &frame->encoding);
     return {GrabStatus::kFrame, ""};
   }
 

@@ -3,9 +3,10 @@
 // true), so files may be added or removed while it plays.
 #include <algorithm>
 #include <cctype>
+#include <filesystem>
+#include <system_error>
 #include <vector>
 
-#include <boost/filesystem.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "frame_source.h"
@@ -16,7 +17,7 @@ namespace structured_light_stabilizer
 namespace
 {
 
-bool isImageFile(const boost::filesystem::path& p)
+bool isImageFile(const std::filesystem::path& p)
 {
   std::string ext = p.extension().string();
   std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
@@ -29,19 +30,19 @@ bool isImageFile(const boost::filesystem::path& p)
 std::vector<std::string> listImages(const std::string& dir, std::string* why)
 {
   std::vector<std::string> files;
-  boost::system::error_code ec;
+  std::error_code ec;
   if (dir.empty())
   {
     *why = "~image_dir is empty; set it to a folder of images";
     return files;
   }
-  if (!boost::filesystem::is_directory(dir, ec))
+  if (!std::filesystem::is_directory(dir, ec))
   {
     *why = "image folder '" + dir + "' does not exist or is not a folder";
     return files;
   }
-  for (boost::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
-    if (boost::filesystem::is_regular_file(it->path(), ec) && isImageFile(it->path()))
+  for (std::filesystem::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
+    if (std::filesystem::is_regular_file(it->path(), ec) && isImageFile(it->path()))
       files.push_back(it->path().string());
   std::sort(files.begin(), files.end());
   if (files.empty())
@@ -99,7 +100,7 @@ public:
       return {GrabStatus::kSkip, ""};
     ++published_in_pass_;
     frame->processing_ms = millisecondsSince(t0);
-    frame->image = toBgr8(raw);
+    frame->image = asPublished(raw, &frame->encoding);
     return {GrabStatus::kFrame, ""};
   }
 

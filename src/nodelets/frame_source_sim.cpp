@@ -368,19 +368,27 @@ void SimSource::published(const std_msgs::Header& header)
   uint32_t visible = 0;
   auto spots = boost::make_shared<CentroidArray>();
   spots->header = header;
-  spots->image_width = frame.image.cols;
-  spots->image_height = frame.image.rows;
+  // In the pixels of the published image: the driver's sensor window
+  // (binning, ROI) applies to the truth as to the frame.
+  const SensorWindow& window = ctx_.window;
+  const cv::Size published_size = window.imageSize(frame.image.cols, frame.image.rows);
+  spots->image_width = published_size.width;
+  spots->image_height = published_size.height;
   for (int b = 0; b < projector.beamCount(); ++b)
   {
     if (!frame.visible[b])
       continue;
+    const cv::Point2d px = window.toImage(frame.pixels[b]);
+    if (!(px.x >= -0.5 && px.y >= -0.5 && px.x < published_size.width - 0.5 && px.y < published_size.height - 0.5))
+      continue;  // outside the ROI
     ++visible;
     Centroid c;
-    c.x = frame.pixels[b].x;
-    c.y = frame.pixels[b].y;
+    c.x = px.x;
+    c.y = px.y;
     // Area of the 2-sigma disc of the rendered dot, the size a detector
     // thresholding at ~14 % of the peak would find.
-    c.area = static_cast<float>(M_PI * 4.0 * frame.blur_sigma_px[b] * frame.blur_sigma_px[b]);
+    c.area = static_cast<float>(M_PI * 4.0 * frame.blur_sigma_px[b] * frame.blur_sigma_px[b] /
+                                (window.binning_x * window.binning_y));
     c.intensity = static_cast<float>(frame.peak_dn[b]);
     c.beam = b;
     spots->centroids.push_back(c);

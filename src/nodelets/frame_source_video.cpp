@@ -1,7 +1,9 @@
 // CameraDriver source "video": a video file played at ~rate, from the start
 // again at its end while ~loop (default true).
 
-#include <boost/filesystem.hpp>
+#include <filesystem>
+#include <system_error>
+
 #include <opencv2/videoio.hpp>
 
 #include "frame_source.h"
@@ -26,7 +28,7 @@ public:
     frames_in_pass_ = 0;
     if (file_.empty())
       *why = "~video_file is empty; set it to the video to play";
-    else if (!boost::filesystem::is_regular_file(file_))
+    else if (std::error_code ec; !std::filesystem::is_regular_file(file_, ec))
       *why = "video file '" + file_ + "' does not exist";
     else if (!capture_.open(file_) || !capture_.isOpened())
       *why = "cannot decode video file '" + file_ + "' (unknown container or codec)";
@@ -64,7 +66,7 @@ public:
     if (!ctx_.stamp(&frame->stamp))
       return {GrabStatus::kSkip, ""};
     frame->processing_ms = millisecondsSince(t0);
-    frame->image = toBgr8(raw);
+    frame->image = asPublished(raw, &frame->encoding);
     return {GrabStatus::kFrame, ""};
   }
 

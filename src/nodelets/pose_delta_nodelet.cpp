@@ -1,9 +1,17 @@
 // PoseDelta nodelet: the camera's motion relative to the locked rock.
 //
 // Wiring only: points (+ camera/image_raw, camera/camera_info for the texture
-// part) -> PoseDeltaEstimator (core) -> pose_delta, tf, diagnostics, and the
-// service pose_delta/lock. Images are matched to clouds by header stamp from a
-// short buffer; a cloud whose image never comes is processed on geometry.
+// part) -> PoseDeltaEstimator (core) -> pose_delta, pose_delta/pose, tf,
+// diagnostics, and the service pose_delta/lock. Images are matched to clouds
+// by header stamp (message_filters, cloud_image_matcher.h); a cloud whose
+// image never comes is processed on geometry; the latest camera_info serves.
+//
+// Outputs (docs/interface.md, "tf" and "Frames"): pose_delta for every
+// cloud; pose_delta/pose (the current camera's pose in the reference frame,
+// PoseWithCovarianceStamped) and the tf <camera_frame> ->
+// <camera_frame>_reference only for valid estimates, the tf never twice with
+// one stamp. With ~publish_tf (default true) the tf is an output nobody
+// subscribes to, so the inputs are always subscribed (no ~lazy).
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -15,6 +23,7 @@
 #include <cv_bridge/cv_bridge.h>
 #include <diagnostic_updater/publisher.h>
 #include <dynamic_reconfigure/server.h>
+#include <geometry_msgs/PoseWithCovarianceStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <image_transport/image_transport.h>
 #include <pluginlib/class_list_macros.hpp>
@@ -111,6 +120,9 @@ private:
     ros::NodeHandle& nh = getNodeHandle();
     ros::NodeHandle& pnh = getPrivateNodeHandle();
     readLazyParam();
+    pnh.param("publish_tf", publish_tf_, true);
+    // The tf has no subscriber count: while it is wanted the inputs must be.
+    lazy_ = lazy_ && !publish_tf_;
     pnh.param("auto_lock", auto_lock_, true);
     pnh.param("camera_frame", camera_frame_param_, std::string());
     pnh.param("image_queue_size", image_queue_size_, 5);
@@ -143,9 +155,14 @@ private:
 
     srv_lock_ = nh.advertiseService("pose_delta/lock", &PoseDeltaNodelet::lockCb, this);
     pub_pose_ = advertise<PoseDelta>(nh, "pose_delta", 10);
+    pub_pose_cov_ = advertise<geometry_msgs::PoseWithCovarianceStamped>(nh, "pose_delta/pose", 10);
     startSubscriptions(std::string("input (points") + (use_texture_ ? ", camera/image_raw, camera/camera_info" : "") +
-                       ") is subscribed on demand, while pose_delta has subscribers (~lazy:=false to always run, "
-                       "e.g. for tf only)");
+                       ") is subscribed on demand, while pose_delta or pose_delta/pose has subscribers "
+                       "(~lazy:=false, or ~publish_tf:=true, to always run)");
+    if (publish_tf_)
+      NODELET_INFO("PoseDelta: ~publish_tf: inputs subscribed at start-up; tf %s -> %s_reference for valid estimates",
+                   camera_frame_param_.empty() ? "<camera frame>" : camera_frame_param_.c_str(),
+                   camera_frame_param_.empty() ? "<camera frame>" : camera_frame_param_.c_str());
     NODELET_INFO("PoseDelta: %s; reference %s", auto_lock_ ? "auto_lock" : "no auto_lock",
                  auto_lock_ ? "= first valid map" : "locked by the pose_delta/lock service");
   }
@@ -340,7 +357,20 @@ private:
     last_features_ = r.features_used;
     if (!r.valid)
       NODELET_WARN_THROTTLE(10.0, "PoseDelta: not valid: %s", r.status.c_str());
-    publish(msg, start, estimator_.hasReference());
+    else if (pub_pose_cov_.getNumSubscribers() > 0)
+      publishPose(*msg, r);
+    publish(msg, start, r.valid && estimator_.hasReference());
+  }
+
+  // pose_delta/pose: the same estimate as a standard pose of the current
+  // camera in the reference camera frame (conversions.h).
+  void publishPose(const PoseDelta& msg, const PoseDeltaResult& r)
+  {
+    geometry_msgs::PoseWithCovarianceStampedPtr pose(new geometry_msgs::PoseWithCovarianceStamped);
+    pose->header.stamp = msg.header.stamp;
+    pose->header.frame_id = msg.header.frame_id + "_reference";
+    pose->pose = currentPoseInReference(r.transform, r.covariance);
+    pub_pose_cov_.publish(pose);
   }
 
   // Picks the image channel with the rock's texture and the least dot light.
@@ -405,9 +435,9 @@ private:
     ++frames_;
     valid_frames_ += msg->valid ? 1 : 0;
     // tf: parent = current camera frame, child = the reference camera pose;
-    // p_cur = T p_ref is exactly the child-to-parent transform. Never the
-    // same stamp twice (TF_REPEATED_DATA).
-    if (broadcast_tf && msg->header.stamp != last_tf_stamp_)
+    // p_cur = T p_ref is exactly the child-to-parent transform. Only valid
+    // estimates; never the same stamp twice (TF_REPEATED_DATA).
+    if (publish_tf_ && broadcast_tf && msg->header.stamp != last_tf_stamp_)
     {
       geometry_msgs::TransformStamped tf;
       tf.header = msg->header;
@@ -444,6 +474,7 @@ private:
 
   // Parameters fixed at start-up.
   bool auto_lock_ = true;
+  bool publish_tf_ = true;
   std::string camera_frame_param_;
   int image_queue_size_ = 5;
 
@@ -459,6 +490,7 @@ private:
   bool use_texture_ = true;
 
   ros::Publisher pub_pose_;
+  ros::Publisher pub_pose_cov_;
   ros::Subscriber sub_points_;
   ros::Subscriber sub_info_;
   std::unique_ptr<image_transport::ImageTransport> it_;

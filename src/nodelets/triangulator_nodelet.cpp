@@ -2,6 +2,10 @@
 // points (organised PointCloud2, one point per projector beam) and
 // spots/assigned (the spots with their beam ids). All the work is done by
 // the core Triangulator (triangulator.h); this file only wires it to ROS.
+// camera_info: the latest one received serves (it rarely changes; a stale
+// one is warned about once), or with ~exact_sync the one with the spots'
+// stamp (message_filters ExactTime; spots without one are dropped).
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <memory>
@@ -10,6 +14,9 @@
 
 #include <boost/thread/recursive_mutex.hpp>
 #include <dynamic_reconfigure/server.h>
+#include <message_filters/subscriber.h>
+#include <message_filters/sync_policies/exact_time.h>
+#include <message_filters/synchronizer.h>
 #include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -23,6 +30,7 @@
 #include "structured_light_stabilizer/triangulator.h"
 #include "conversions.h"
 #include "nodelet_base.h"
+#include "resource_url.h"
 
 namespace structured_light_stabilizer
 {
@@ -78,6 +86,7 @@ private:
     ros::NodeHandle& pnh = getPrivateNodeHandle();
     readLazyParam();
     pnh.param("camera_info_stale_s", info_stale_s_, 1.0);
+    pnh.param("exact_sync", exact_sync_, false);
     pnh.param<std::string>("projector_calibration", calibration_path_, "");
     loadCalibration();
 
@@ -101,6 +110,15 @@ private:
   void subscribe() override
   {
     ros::NodeHandle& nh = getNodeHandle();
+    if (exact_sync_)
+    {
+      sync_spots_.subscribe(nh, "spots", 5);
+      sync_info_.subscribe(nh, "camera/camera_info", 5);
+      sync_.reset(new message_filters::Synchronizer<ExactPolicy>(ExactPolicy(10), sync_spots_, sync_info_));
+      sync_->registerCallback(&TriangulatorNodelet::syncedCb, this);
+      sync_->getPolicy()->registerDropCallback(&TriangulatorNodelet::unmatchedCb, this);
+      return;
+    }
     sub_info_ = nh.subscribe("camera/camera_info", 1, &TriangulatorNodelet::infoCb, this);
     sub_spots_ = nh.subscribe("spots", 1, &TriangulatorNodelet::spotsCb, this);
   }
@@ -109,6 +127,8 @@ private:
   {
     sub_spots_.shutdown();
     sub_info_.shutdown();
+    sync_spots_.unsubscribe();
+    sync_info_.unsubscribe();
   }
 
   void loadCalibration()
@@ -117,13 +137,14 @@ private:
     triangulator_.reset();
     if (calibration_path_.empty())
     {
-      calibration_error_ = "~projector_calibration is not set (path of the projector calibration YAML)";
+      calibration_error_ =
+          "~projector_calibration is not set (the projector calibration YAML: a path, file:// or package:// URL)";
       NODELET_ERROR("Triangulator: %s; nothing will be published", calibration_error_.c_str());
       return;
     }
     ProjectorCalibration cal;
-    std::string err;
-    if (!loadProjectorCalibration(calibration_path_, &cal, &err))
+    std::string err, path;
+    if (!resolveResourceUrl(calibration_path_, &path, &err) || !loadProjectorCalibration(path, &cal, &err))
     {
       calibration_error_ = "projector calibration refused: " + err;
       NODELET_ERROR("Triangulator: %s; nothing will be published", calibration_error_.c_str());
@@ -175,6 +196,20 @@ private:
   void spotsCb(const CentroidArrayConstPtr& msg)
   {
     guarded([&] { process(msg); });
+  }
+
+  // ~exact_sync: spots and the camera_info of their stamp.
+  void syncedCb(const CentroidArrayConstPtr& msg, const sensor_msgs::CameraInfoConstPtr& info)
+  {
+    infoCb(info);
+    spotsCb(msg);
+  }
+
+  void unmatchedCb(const CentroidArrayConstPtr& msg, const sensor_msgs::CameraInfoConstPtr& /*info*/)
+  {
+    if (msg)
+      dropFrame("~exact_sync: no camera_info with the spots' stamp " + std::to_string(msg->header.stamp.toSec()) +
+                "; frame dropped");
   }
 
   void process(const CentroidArrayConstPtr& msg)
@@ -253,12 +288,16 @@ private:
                 " yet; nothing published");
       return false;
     }
-    if (info->width != msg.image_width || info->height != msg.image_height)
+    std::string err;
+    if (!cameraModelFromInfo(*info, model, &err))
     {
-      dropFrame("camera_info is " + std::to_string(info->width) + "x" + std::to_string(info->height) +
-                " but the spots come from a " + std::to_string(msg.image_width) + "x" +
-                std::to_string(msg.image_height) +
-                " image; frame dropped (wrong camera_info, or binning/ROI upstream)");
+      dropFrame(err + "; frame dropped");
+      return false;
+    }
+    // The model is of the binned ROI the image is (cameraModelFromInfo).
+    if (model->width != static_cast<int>(msg.image_width) || model->height != static_cast<int>(msg.image_height))
+    {
+      dropFrame(sizeMismatch(*info, *model, msg));
       return false;
     }
     const double age = std::abs((msg.header.stamp - info->header.stamp).toSec());
@@ -270,13 +309,25 @@ private:
           age);
       stale_warned_ = true;
     }
-    std::string err;
-    if (!cameraModelFromInfo(*info, model, &err))
-    {
-      dropFrame(err + "; frame dropped");
-      return false;
-    }
     return true;
+  }
+
+  // Why a camera_info does not fit the spots' image (binning and ROI named
+  // when set: a different kind of problem for the drop log).
+  static std::string sizeMismatch(const sensor_msgs::CameraInfo& info, const CameraModel& model,
+                                  const CentroidArray& msg)
+  {
+    const auto size = [](uint32_t w, uint32_t h) { return std::to_string(w) + "x" + std::to_string(h); };
+    const std::string spots = " but the spots come from a " + size(msg.image_width, msg.image_height) + " image";
+    const SensorWindow w = sensorWindowFromInfo(info);
+    const int sensor_w = static_cast<int>(info.width), sensor_h = static_cast<int>(info.height);
+    if (w.isFullSensor(sensor_w, sensor_h))
+      return "camera_info is " + size(info.width, info.height) + spots + "; frame dropped (wrong camera_info?)";
+    const cv::Rect roi = w.roi(sensor_w, sensor_h);
+    return "camera_info is " + size(info.width, info.height) + " with binning " + size(w.binning_x, w.binning_y) +
+           " and ROI " + size(roi.width, roi.height) + "+" + std::to_string(roi.x) + "+" + std::to_string(roi.y) +
+           ", i.e. " + size(model.width, model.height) + " images," + spots +
+           "; frame dropped (wrong camera_info, or the window not applied to the image)";
   }
 
   // Non-finite centroids mean a broken upstream: drop the frame rather than
@@ -344,6 +395,7 @@ private:
 
   // Parameters fixed at start-up (the calibration path also on reload).
   double info_stale_s_ = 1.0;
+  bool exact_sync_ = false;
   std::string calibration_path_;
 
   // dynamic_reconfigure: configCb() validates, the frame callback copies.
@@ -362,6 +414,10 @@ private:
   std::atomic<bool> stale_warned_{false};
 
   ros::Subscriber sub_spots_, sub_info_;
+  using ExactPolicy = message_filters::sync_policies::ExactTime<CentroidArray, sensor_msgs::CameraInfo>;
+  message_filters::Subscriber<CentroidArray> sync_spots_;
+  message_filters::Subscriber<sensor_msgs::CameraInfo> sync_info_;
+  std::unique_ptr<message_filters::Synchronizer<ExactPolicy>> sync_;
   ros::Publisher pub_points_, pub_assigned_;
   ros::ServiceServer srv_reload_;
 

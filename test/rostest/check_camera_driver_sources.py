@@ -5,8 +5,14 @@ Makes its own fixtures in a temporary folder (an MJPG .avi written with
 OpenCV, PNG images, camera_info YAMLs, an unreadable "image"), starts one
 standalone camera_driver_node per case in its own namespace, and checks:
 - video and images: image + camera_info of matching size and identical
-  stamps, at the requested rate, bgr8, frame_id as configured; the
-  camera_info is the calibration file's when it fits;
+  stamps, at the requested rate, frame_id as configured, in the encoding the
+  source gives (bgr8 for colour files and videos, mono16 for 16-bit grey
+  PNGs, with their values); the camera_info is the calibration file's when
+  it fits;
+- the sensor window (~binning_x/y, ~roi_*): the image is the ROI binned
+  (each pixel the mean of its block of the file), camera_info keeps the
+  file's K and full size and states binning and ROI; a window that does not
+  fit the frames is reported;
 - bad inputs (missing video, empty folder, unreadable image, missing
   camera_info_url, camera_info_url of another size, missing V4L2 device):
   an ERROR on /rosout that names the problem, and the node still answers.
@@ -102,6 +108,17 @@ class CameraDriverSources(unittest.TestCase):
         with open(os.path.join(cls.bad_dir, "a_broken.png"), "wb") as f:
             f.write(b"this is not a PNG file")
         cv2.imwrite(os.path.join(cls.bad_dir, "b_good.png"), np.full((240, 320, 3), 99, np.uint8))
+        cls.mono16_dir = os.path.join(t, "mono16")
+        os.makedirs(cls.mono16_dir)
+        cls.mono16 = (np.arange(240 * 320, dtype=np.uint32).reshape(240, 320) * 7 % 65536).astype(np.uint16)
+        for i in range(3):
+            cv2.imwrite(os.path.join(cls.mono16_dir, "frame_%03d.png" % i), cls.mono16)
+        cls.pattern_dir = os.path.join(t, "pattern")
+        os.makedirs(cls.pattern_dir)
+        yy, xx = np.mgrid[0:480, 0:640]
+        cls.pattern = np.dstack([(xx + 2 * yy) % 256, (3 * xx) % 256, (5 * yy) % 256]).astype(np.uint8)
+        for i in range(3):
+            cv2.imwrite(os.path.join(cls.pattern_dir, "frame_%03d.png" % i), cls.pattern)
 
         exe = os.path.join(os.path.dirname(os.path.abspath(__file__)), "camera_driver_node")
         import roslib.packages
@@ -120,6 +137,12 @@ class CameraDriverSources(unittest.TestCase):
             "info_wrong_size": ["_source:=images", "_image_dir:=" + cls.image_dir, "_rate:=10",
                                 "_camera_info_url:=file://" + cls.calib_1024],
             "device_missing": ["_source:=device", "_device:=/dev/sls_no_such_camera"],
+            "images_mono16": ["_source:=images", "_image_dir:=" + cls.mono16_dir, "_rate:=5"],
+            "images_window": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=5",
+                              "_camera_info_url:=file://" + cls.calib_640, "_binning_x:=2", "_binning_y:=2",
+                              "_roi_x_offset:=64", "_roi_y_offset:=32", "_roi_width:=320", "_roi_height:=240"],
+            "window_too_big": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=5",
+                               "_roi_x_offset:=400", "_roi_y_offset:=0", "_roi_width:=320", "_roi_height:=240"],
             # Simulator parameters of the wrong type: named, defaults kept, the simulator runs.
             "sim_bad_params": ["_source:=sim", "_rate:=5", "_rock_distance:=far", "_projector_rows:=2.5",
                                "_shot_noise:=3"],
@@ -138,14 +161,15 @@ class CameraDriverSources(unittest.TestCase):
         deadline = time.time() + 40.0
         while time.time() < deadline:
             if all(len(cls.recorders[n].images) > 0
-                   for n in ("video_ok", "images_ok", "images_unreadable", "sim_bad_params")):
+                   for n in ("video_ok", "images_ok", "images_unreadable", "sim_bad_params", "images_mono16",
+                             "images_window")):
                 break
             time.sleep(0.2)
         time.sleep(COLLECT_S)
         # Bad-input errors repeat every 10 s (throttled); wait for them if the
         # first one went out before this node was connected to the publisher.
         bad = ["video_missing", "images_empty", "images_unreadable", "info_missing", "info_wrong_size",
-               "device_missing"]
+               "device_missing", "window_too_big"]
         deadline = time.time() + 15.0
         while time.time() < deadline and not all(cls._errors_of(n) for n in bad):
             time.sleep(0.2)
@@ -178,14 +202,14 @@ class CameraDriverSources(unittest.TestCase):
     def assert_alive(self, ns):
         self.assertTrue(rosnode.rosnode_ping("/%s/driver" % ns, max_count=1), "/%s/driver no longer answers" % ns)
 
-    def check_stream(self, name, width, height, rate, frame_id="camera_optical_frame"):
+    def check_stream(self, name, width, height, rate, frame_id="camera_optical_frame", encoding="bgr8", info_size=None):
         rec = self.recorders[name]
         with rec.lock:
             images, infos = list(rec.images), list(rec.infos)
         self.assertGreater(len(images), 5, "%s: only %d images" % (name, len(images)))
         for img in images:
             self.assertEqual((img.width, img.height), (width, height))
-            self.assertEqual(img.encoding, "bgr8")
+            self.assertEqual(img.encoding, encoding)
             self.assertEqual(img.header.frame_id, frame_id)
         info_by_stamp = {i.header.stamp: i for i in infos}
         matched = [img for img in images if img.header.stamp in info_by_stamp]
@@ -193,7 +217,7 @@ class CameraDriverSources(unittest.TestCase):
         self.assertGreaterEqual(len(matched), len(images) - 1, "%s: image and camera_info stamps differ" % name)
         for img in matched:
             info = info_by_stamp[img.header.stamp]
-            self.assertEqual((info.width, info.height), (img.width, img.height))
+            self.assertEqual((info.width, info.height), info_size or (img.width, img.height))
             self.assertEqual(info.header.frame_id, frame_id)
         stamps = sorted(img.header.stamp.to_sec() for img in images)
         measured = (len(stamps) - 1) / (stamps[-1] - stamps[0])
@@ -214,6 +238,32 @@ class CameraDriverSources(unittest.TestCase):
         self.assertAlmostEqual(infos[0].K[0], 500.0, places=3)
         self.assertEqual(infos[0].distortion_model, "plumb_bob")
         self.assertEqual(self.errors_of("images_ok"), [])
+
+    def test_mono16_images_are_published_as_read(self):
+        images, _ = self.check_stream("images_mono16", 320, 240, 5.0, encoding="mono16")
+        img = images[0]
+        data = np.frombuffer(img.data, np.dtype(np.uint16).newbyteorder(">" if img.is_bigendian else "<"))
+        self.assertTrue(np.array_equal(data.reshape(240, 320), self.mono16), "mono16 values changed on the way")
+
+    def test_sensor_window_bins_the_roi(self):
+        images, infos = self.check_stream("images_window", 160, 120, 5.0, info_size=(640, 480))
+        info = infos[0]
+        self.assertEqual((info.binning_x, info.binning_y), (2, 2))
+        self.assertEqual((info.roi.x_offset, info.roi.y_offset, info.roi.width, info.roi.height), (64, 32, 320, 240))
+        self.assertAlmostEqual(info.K[0], 500.0, places=3)  # the full sensor's K
+        got = np.frombuffer(images[0].data, np.uint8).reshape(120, 160, 3).astype(float)
+        cut = self.pattern[32:272, 64:384].astype(float)
+        expected = cut.reshape(120, 2, 160, 2, 3).mean(axis=(1, 3))
+        worst = np.abs(got - expected).max()
+        print("[ MEASURE ] images_window: largest difference from the 2x2 block means %.2f DN" % worst)
+        self.assertLessEqual(worst, 0.5 + 1e-9)
+        self.assertEqual(self.errors_of("images_window"), [])
+
+    def test_window_that_does_not_fit_is_reported(self):
+        errs = self.errors_of("window_too_big")
+        self.assertTrue(any("does not fit" in e for e in errs), errs)
+        self.assertEqual(len(self.recorders["window_too_big"].images), 0)
+        self.assert_alive("window_too_big")
 
     def test_missing_video_is_reported(self):
         errs = self.errors_of("video_missing")

@@ -1,4 +1,4 @@
-"""Reads an X window dump (xwd -root, ZPixmap, 24/32 bits per pixel) into a
+"""Reads an X window dump (ZPixmap, 24/32 bits per pixel: Xvfb -fbdir, xwd -root) into a
 numpy RGB array and writes PNG files, without extra dependencies."""
 import struct
 import zlib
