@@ -10,6 +10,7 @@
 
 #include "structured_light_stabilizer/board_dots.h"
 #include "structured_light_stabilizer/chessboard.h"
+#include "structured_light_stabilizer/dot_grid.h"
 #include "support/chessboard_scene.h"
 #include "support/triangulator_scene.h"
 
@@ -157,4 +158,61 @@ TEST(BoardDots, PoseAndDotCentresOnTiltedBoards)
   EXPECT_GT(st.n_black, 50);
   EXPECT_LT(worst_pose_mm, 0.3);
   EXPECT_LT(worst_corner_rms, 0.1);
+}
+
+TEST(BoardDots, DistortedLens)
+{
+  // A rational_polynomial lens (barrel, k1 = -0.3): the pose is fitted on
+  // the distorted corners, the print's albedo rendered through the lens.
+  CameraModel cam = CameraModel::studyDesign();
+  cam.distortion = DistortionModel::kRationalPolynomial;
+  cam.D = {-0.3, 0.1, 0.0004, -0.0002, 0.01, -0.15, 0.05, 0.005};
+  const ProjectorCalibration proj = sls_test::simLikeProjector(0.087);
+  sls_test::ChessboardSceneParams sp;
+  sp.seed = 21;
+  const Eigen::Isometry3d pose = sls_test::boardPoseFacing(sp.board, 1.4, -0.25, 0.2);
+  sls_test::ChessboardSceneTruth truth;
+  const cv::Mat bgr = sls_test::renderChessboardScene(cam, proj, sp, pose, &truth);
+  std::vector<cv::Mat> ch;
+  cv::split(bgr, ch);
+  const ChessboardDetection det = detectChessboard(ch[2], cam, sp.board);
+  ASSERT_TRUE(det.found) << det.why;
+  double pose_mm = 0.0;
+  for (int k = 0; k < sp.board.cornerCount(); ++k)
+  {
+    const Eigen::Vector3d a = det.pose * sp.board.corner(k);
+    pose_mm = std::max(pose_mm, 1e3 * std::min((a - pose * sp.board.corner(k)).norm(),
+                                               (a - pose * sp.board.corner(sp.board.cornerCount() - 1 - k)).norm()));
+  }
+  BoardDotReport rep;
+  const std::vector<BoardDot> dots = findBoardDots(ch[1], 255.0, cam, sp.board, det, BoardDotParams(), &rep);
+  ViewStats st;
+  scoreView(cam, sp.board, dots, truth, &st);
+  std::cout << "[ MEASURE ] rational_polynomial lens: corners rms " << det.corner_rms_px << " px, pose worst "
+            << pose_mm << " mm, dots " << st.found << " / " << st.on_print << ", on white "
+            << std::sqrt(st.sum2_white / std::max(1, st.n_white)) << " px RMS\n";
+  EXPECT_LT(pose_mm, 0.3);
+  EXPECT_GE(st.found, st.on_print);
+  EXPECT_LT(std::sqrt(st.sum2_white / std::max(1, st.n_white)), 0.03);
+  // A faint spot that is not a dot may be fitted; the pattern's grid must
+  // leave it out (every true dot labelled, no other spot).
+  std::vector<Eigen::Vector2d> px;
+  for (const BoardDot& d : dots)
+  {
+    const Eigen::Vector2d n = cam.normalize(cv::Point2d(d.x, d.y));
+    px.emplace_back(cam.fx * n.x() + cam.cx, cam.fy * n.y() + cam.cy);
+  }
+  const DotGrid grid = labelDotGrid(px);
+  int labelled_wrong = 0;
+  for (size_t k = 0; k < dots.size(); ++k)
+  {
+    double best = 1e9;
+    for (const cv::Point2d& h : truth.hit_pixels)
+      if (std::isfinite(h.x))
+        best = std::min(best, std::hypot(dots[k].x - h.x, dots[k].y - h.y));
+    labelled_wrong += grid.labelled[k] && best > 1.5;
+  }
+  EXPECT_LE(st.wrong, 2);
+  EXPECT_EQ(labelled_wrong, 0);
+  EXPECT_EQ(grid.count, st.found);
 }
