@@ -100,145 +100,192 @@ inline double albedoAt(const ChessboardSceneParams& p, double x, double y)
 
 }  // namespace detail_board
 
+// The renderer's stages (see the file's header for the physics).
+class BoardRenderer
+{
+public:
+  BoardRenderer(const CameraModel& cam, const ChessboardSceneParams& p, const Eigen::Isometry3d& pose)
+    : cam_(cam), p_(p), pose_(pose), inv_(pose.inverse()), n_(pose.linear().col(2)), t_(pose.translation()),
+      S_(std::max(1, p.supersample)), W_(cam.width), H_(cam.height)
+  {
+    // Undistorted ray directions on an exact grid every 4 px (pixel coords).
+    gw_ = W_ / kStep + 2;
+    gh_ = H_ / kStep + 2;
+    grid_.resize(static_cast<size_t>(gw_) * gh_);
+    for (int j = 0; j < gh_; ++j)
+      for (int i = 0; i < gw_; ++i)
+        grid_[static_cast<size_t>(j) * gw_ + i] = cam.normalize(cv::Point2d(i * kStep - 0.5, j * kStep - 0.5));
+  }
+
+  // Camera ray (x/z, y/z, 1) through a point of the image (pixel coordinates).
+  Eigen::Vector3d rayAt(double u, double v) const
+  {
+    const double gu = (u + 0.5) / kStep, gv = (v + 0.5) / kStep;
+    const int i = std::min(gw_ - 2, std::max(0, static_cast<int>(gu)));
+    const int j = std::min(gh_ - 2, std::max(0, static_cast<int>(gv)));
+    const double fu = gu - i, fv = gv - j;
+    const auto at = [&](int di, int dj) { return grid_[static_cast<size_t>(j + dj) * gw_ + i + di]; };
+    const Eigen::Vector2d xy = (1 - fv) * ((1 - fu) * at(0, 0) + fu * at(1, 0)) + fv * ((1 - fu) * at(0, 1) + fu * at(1, 1));
+    return Eigen::Vector3d(xy.x(), xy.y(), 1.0);
+  }
+
+  // Albedo (white = 1) at a point of the image.
+  double albedoAtPixel(double x, double y) const
+  {
+    const Eigen::Vector3d ray = rayAt(x, y);
+    const double s = n_.dot(t_) / n_.dot(ray);
+    const Eigen::Vector3d hb = inv_ * (s * ray);
+    return s > 0 ? detail_board::albedoAt(p_, hb.x(), hb.y()) / p_.white : 0.0;
+  }
+
+  void truth(const ProjectorCalibration& proj, ChessboardSceneTruth* truth) const
+  {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    const int nb = proj.beamCount();
+    const BoardParams& b = p_.board;
+    truth->pose = pose_;
+    truth->hits.assign(nb, Eigen::Vector3d::Constant(nan));
+    truth->hit_pixels.assign(nb, cv::Point2d(nan, nan));
+    truth->corners.clear();
+    for (int k = 0; k < b.cornerCount(); ++k)
+      truth->corners.push_back(cam_.project(pose_ * b.corner(k)));
+    for (int i = 0; i < nb; ++i)
+    {
+      const BeamRay& r = proj.beams[i];
+      const Eigen::Vector3d hit = r.pointAt(n_.dot(t_ - r.origin) / n_.dot(r.direction));
+      const Eigen::Vector3d hb = inv_ * hit;
+      const double lo = -b.square_m - b.margin_m;
+      const bool on_print = hb.x() > lo && hb.y() > lo && hb.x() < b.cols * b.square_m + b.margin_m &&
+                            hb.y() < b.rows * b.square_m + b.margin_m;
+      const cv::Point2d px = cam_.project(hit);
+      if (hidden(i) || !on_print || !(px.x > 0 && px.y > 0 && px.x < W_ - 1 && px.y < H_ - 1))
+        continue;
+      truth->hits[i] = hit;
+      truth->hit_pixels[i] = px;
+    }
+  }
+
+  // The print's albedo times vignetting on the sub-pixels; a sub-pixel
+  // crossed by an edge gets its covered fraction (8 x 8 samples), not the
+  // value at its centre: point samples would put every edge on the
+  // sub-pixel lattice.
+  cv::Mat albedo() const
+  {
+    cv::Mat alb(H_ * S_, W_ * S_, CV_32F);
+    const double h = 0.5 / S_;
+    for (int v = 0; v < H_ * S_; ++v)
+      for (int u = 0; u < W_ * S_; ++u)
+      {
+        const double x = (u + 0.5) / S_ - 0.5, y = (v + 0.5) / S_ - 0.5;
+        double a = albedoAtPixel(x, y);
+        if (albedoAtPixel(x - h, y - h) != a || albedoAtPixel(x + h, y - h) != a ||
+            albedoAtPixel(x - h, y + h) != a || albedoAtPixel(x + h, y + h) != a)
+        {
+          a = 0.0;
+          for (int j = 0; j < 8; ++j)
+            for (int i = 0; i < 8; ++i)
+              a += albedoAtPixel(x - h + (i + 0.5) * 2 * h / 8, y - h + (j + 0.5) * 2 * h / 8) / 64.0;
+        }
+        const double cos4 = p_.vignetting ? std::pow(1.0 / rayAt(x, y).squaredNorm(), 2.0) : 1.0;
+        alb.at<float>(v, u) = static_cast<float>(a * cos4);
+      }
+    return alb;
+  }
+
+  // The light sources: every beam not blocked at the projector that meets
+  // the plane (on the print or beyond it), and the glints.
+  std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> sources(const ProjectorCalibration& proj,
+                                                                    std::mt19937* rng) const
+  {
+    std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> out;  // (origin, direction)
+    for (int b = 0; b < proj.beamCount(); ++b)
+      if (!hidden(b) && n_.dot(t_ - proj.beams[b].origin) / n_.dot(proj.beams[b].direction) > 0.0)
+        out.push_back({proj.beams[b].origin, proj.beams[b].direction});
+    std::uniform_real_distribution<double> uni(0.1, 0.9);
+    for (int k = 0; k < p_.reflections; ++k)
+    {
+      // A glint: a dot-like spot at a random place on the print.
+      const Eigen::Vector3d on_board(uni(*rng) * p_.board.cols * p_.board.square_m,
+                                     uni(*rng) * p_.board.rows * p_.board.square_m, 0);
+      out.push_back({proj.beams[0].origin, (pose_ * on_board - proj.beams[0].origin).normalized()});
+    }
+    return out;
+  }
+
+  // One beam's light on the sub-pixels: a Gaussian cone from its origin,
+  // falling as cos(incidence) / distance^2, times the print under each.
+  void addDot(const Eigen::Vector3d& o, const Eigen::Vector3d& dir, const cv::Mat& alb, cv::Mat* dot) const
+  {
+    const Eigen::Vector3d d = dir.normalized();
+    const double sh = n_.dot(t_ - o) / n_.dot(d);
+    const Eigen::Vector3d hit = o + sh * d;
+    const cv::Point2d c = cam_.project(hit);
+    const double gain = p_.dot_peak_dn * std::abs(n_.dot(d)) * std::pow(1.5 / sh, 2.0);
+    const double half = 6.0 * p_.beam_sigma_rad * sh * cam_.fx / hit.z() + 3.0;  // px
+    const double s2 = p_.beam_sigma_rad * p_.beam_sigma_rad;
+    for (int v = std::max(0, static_cast<int>((c.y - half) * S_)); v < std::min(H_ * S_, static_cast<int>((c.y + half) * S_)); ++v)
+      for (int u = std::max(0, static_cast<int>((c.x - half) * S_)); u < std::min(W_ * S_, static_cast<int>((c.x + half) * S_)); ++u)
+      {
+        const Eigen::Vector3d ray = rayAt((u + 0.5) / S_ - 0.5, (v + 0.5) / S_ - 0.5);
+        const Eigen::Vector3d w = ray * (n_.dot(t_) / n_.dot(ray)) - o;
+        const double along = w.dot(d);
+        const double ang2 = (w - along * d).squaredNorm() / (along * along);
+        dot->at<float>(v, u) += static_cast<float>(gain * std::exp(-0.5 * ang2 / s2) * alb.at<float>(v, u));
+      }
+  }
+
+  // Lens blur and pixel box of the sub-pixel radiance, then shot and read
+  // noise, clipping and 8 bits, per channel.
+  cv::Mat sensor(cv::Mat amb, cv::Mat dot, std::mt19937* rng) const
+  {
+    if (p_.psf_sigma_px > 0.0)
+    {
+      cv::GaussianBlur(amb, amb, cv::Size(0, 0), p_.psf_sigma_px * S_);
+      cv::GaussianBlur(dot, dot, cv::Size(0, 0), p_.psf_sigma_px * S_);
+    }
+    cv::Mat amb_px, dot_px;
+    cv::resize(amb, amb_px, cv::Size(W_, H_), 0, 0, cv::INTER_AREA);
+    cv::resize(dot, dot_px, cv::Size(W_, H_), 0, 0, cv::INTER_AREA);
+    cv::Mat out(H_, W_, CV_8UC3);
+    std::normal_distribution<double> gauss(0.0, 1.0);
+    for (int v = 0; v < H_; ++v)
+      for (int u = 0; u < W_; ++u)
+        for (int ch = 0; ch < 3; ++ch)
+        {
+          const double signal = amb_px.at<float>(v, u) + p_.dot_bgr_ratio(ch) * dot_px.at<float>(v, u);
+          const double sigma =
+              std::sqrt(p_.read_noise_dn * p_.read_noise_dn + std::max(0.0, signal) * p_.gain_dn_per_electron);
+          const double value = std::round(signal + sigma * gauss(*rng));
+          out.at<cv::Vec3b>(v, u)[ch] = static_cast<uint8_t>(std::min(255.0, std::max(0.0, value)));
+        }
+    return out;
+  }
+
+private:
+  static constexpr int kStep = 4;
+  bool hidden(int b) const { return b < static_cast<int>(p_.hidden_beams.size()) && p_.hidden_beams[b]; }
+
+  const CameraModel& cam_;
+  const ChessboardSceneParams& p_;
+  Eigen::Isometry3d pose_, inv_;
+  Eigen::Vector3d n_, t_;
+  int S_, W_, H_, gw_ = 0, gh_ = 0;
+  std::vector<Eigen::Vector2d> grid_;
+};
+
 inline cv::Mat renderChessboardScene(const CameraModel& cam, const ProjectorCalibration& proj,
                                      const ChessboardSceneParams& p, const Eigen::Isometry3d& pose,
                                      ChessboardSceneTruth* truth)
 {
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  const int S = std::max(1, p.supersample), W = cam.width, H = cam.height;
-  const Eigen::Vector3d n = pose.linear().col(2), t = pose.translation();
-  const Eigen::Isometry3d inv = pose.inverse();
-  // Undistorted ray directions on an exact grid every 4 px (pixel coords).
-  const int step = 4, gw = W / step + 2, gh = H / step + 2;
-  std::vector<Eigen::Vector2d> grid(static_cast<size_t>(gw) * gh);
-  for (int j = 0; j < gh; ++j)
-    for (int i = 0; i < gw; ++i)
-      grid[static_cast<size_t>(j) * gw + i] = cam.normalize(cv::Point2d(i * step - 0.5, j * step - 0.5));
-  const auto rayAt = [&](double u, double v) {
-    const double gu = (u + 0.5) / step, gv = (v + 0.5) / step;
-    const int i = std::min(gw - 2, std::max(0, static_cast<int>(gu))), j = std::min(gh - 2, std::max(0, static_cast<int>(gv)));
-    const double fu = gu - i, fv = gv - j;
-    const auto& a = grid[static_cast<size_t>(j) * gw + i];
-    const auto& b = grid[static_cast<size_t>(j) * gw + i + 1];
-    const auto& c = grid[static_cast<size_t>(j + 1) * gw + i];
-    const auto& d = grid[static_cast<size_t>(j + 1) * gw + i + 1];
-    const Eigen::Vector2d xy = (1 - fv) * ((1 - fu) * a + fu * b) + fv * ((1 - fu) * c + fu * d);
-    return Eigen::Vector3d(xy.x(), xy.y(), 1.0);
-  };
-  // Truth: hits of the beams on the board (inside the print).
-  const int nb = proj.beamCount();
-  truth->pose = pose;
-  truth->hits.assign(nb, Eigen::Vector3d::Constant(nan));
-  truth->hit_pixels.assign(nb, cv::Point2d(nan, nan));
-  truth->corners.clear();
-  for (int k = 0; k < p.board.cornerCount(); ++k)
-    truth->corners.push_back(cam.project(pose * p.board.corner(k)));
-  for (int b = 0; b < nb; ++b)
-  {
-    const BeamRay& r = proj.beams[b];
-    const double s = n.dot(t - r.origin) / n.dot(r.direction);
-    const Eigen::Vector3d hit = r.pointAt(s);
-    const Eigen::Vector3d hb = inv * hit;
-    const bool hidden = b < static_cast<int>(p.hidden_beams.size()) && p.hidden_beams[b];
-    const double s_b = p.board.square_m;
-    const bool on_print = hb.x() > -s_b - p.board.margin_m && hb.y() > -s_b - p.board.margin_m &&
-                          hb.x() < p.board.cols * s_b + p.board.margin_m && hb.y() < p.board.rows * s_b + p.board.margin_m;
-    const cv::Point2d px = cam.project(hit);
-    if (hidden || !on_print || !(px.x > 0 && px.y > 0 && px.x < W - 1 && px.y < H - 1))
-      continue;
-    truth->hits[b] = hit;
-    truth->hit_pixels[b] = px;
-  }
-  // Radiance at the sub-pixels: ambient and dot light, per channel.
-  cv::Mat amb(H * S, W * S, CV_32F), dot(H * S, W * S, CV_32F, cv::Scalar(0));
-  cv::Mat alb(H * S, W * S, CV_32F);
-  const double fx = cam.fx;
-  // Albedo (white = 1) at a point of the image (pixel coordinates).
-  const auto albedoAtPixel = [&](double x, double y) {
-    const Eigen::Vector3d ray = rayAt(x, y);
-    const double s = n.dot(t) / n.dot(ray);
-    const Eigen::Vector3d hb = inv * (s * ray);
-    return s > 0 ? detail_board::albedoAt(p, hb.x(), hb.y()) / p.white : 0.0;
-  };
-  for (int v = 0; v < H * S; ++v)
-    for (int u = 0; u < W * S; ++u)
-    {
-      const double x = (u + 0.5) / S - 0.5, y = (v + 0.5) / S - 0.5, h = 0.5 / S;
-      double a = albedoAtPixel(x, y);
-      // A sub-pixel crossed by an edge gets its covered fraction (8 x 8
-      // samples), not the value at its centre: point samples would put
-      // every edge on the sub-pixel lattice.
-      if (albedoAtPixel(x - h, y - h) != a || albedoAtPixel(x + h, y - h) != a || albedoAtPixel(x - h, y + h) != a ||
-          albedoAtPixel(x + h, y + h) != a)
-      {
-        a = 0.0;
-        for (int j = 0; j < 8; ++j)
-          for (int i = 0; i < 8; ++i)
-            a += albedoAtPixel(x - h + (i + 0.5) * 2 * h / 8, y - h + (j + 0.5) * 2 * h / 8) / 64.0;
-      }
-      const Eigen::Vector3d ray = rayAt(x, y);
-      const double cos4 = p.vignetting ? std::pow(1.0 / ray.squaredNorm(), 2.0) : 1.0;
-      alb.at<float>(v, u) = static_cast<float>(a * cos4);
-      amb.at<float>(v, u) = static_cast<float>(p.ambient_dn * a * cos4);
-    }
+  const BoardRenderer r(cam, p, pose);
+  r.truth(proj, truth);
+  const cv::Mat alb = r.albedo();
+  const cv::Mat amb = alb * p.ambient_dn;
+  cv::Mat dot(alb.size(), CV_32F, cv::Scalar(0));
   std::mt19937 rng(p.seed);
-  std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> sources;  // (origin, direction) of lit spots
-  // Every beam not blocked at the projector lights the plane, on the print or beyond it.
-  for (int b = 0; b < nb; ++b)
-    if (!(b < static_cast<int>(p.hidden_beams.size()) && p.hidden_beams[b]) &&
-        n.dot(t - proj.beams[b].origin) / n.dot(proj.beams[b].direction) > 0.0)
-      sources.push_back({proj.beams[b].origin, proj.beams[b].direction});
-  std::uniform_real_distribution<double> uni(0.1, 0.9);
-  for (int k = 0; k < p.reflections; ++k)
-  {
-    // A glint: a dot-like spot at a random place on the print, lit from the projector's direction.
-    const Eigen::Vector3d on_board(uni(rng) * p.board.cols * p.board.square_m, uni(rng) * p.board.rows * p.board.square_m, 0);
-    const Eigen::Vector3d hit = pose * on_board;
-    sources.push_back({proj.beams[0].origin, (hit - proj.beams[0].origin).normalized()});
-  }
-  for (const auto& src : sources)
-  {
-    const Eigen::Vector3d& o = src.first;
-    const Eigen::Vector3d d = src.second.normalized();
-    const double sh = n.dot(t - o) / n.dot(d);
-    const Eigen::Vector3d hit = o + sh * d;
-    const cv::Point2d c = cam.project(hit);
-    const double cos_inc = std::abs(n.dot(d));
-    const double gain = p.dot_peak_dn * cos_inc * std::pow(1.5 / sh, 2.0);
-    const double half = 6.0 * p.beam_sigma_rad * sh * fx / hit.z() + 3.0;  // px
-    for (int v = std::max(0, static_cast<int>((c.y - half) * S)); v < std::min(H * S, static_cast<int>((c.y + half) * S)); ++v)
-      for (int u = std::max(0, static_cast<int>((c.x - half) * S)); u < std::min(W * S, static_cast<int>((c.x + half) * S)); ++u)
-      {
-        const Eigen::Vector3d ray = rayAt((u + 0.5) / S - 0.5, (v + 0.5) / S - 0.5);
-        const Eigen::Vector3d q = ray * (n.dot(t) / n.dot(ray));
-        const Eigen::Vector3d w = q - o;
-        const double along = w.dot(d);
-        const double ang2 = (w - along * d).squaredNorm() / (along * along);
-        dot.at<float>(v, u) += static_cast<float>(gain * std::exp(-0.5 * ang2 / (p.beam_sigma_rad * p.beam_sigma_rad)) *
-                                                  alb.at<float>(v, u));
-      }
-  }
-  // Lens blur, pixel box, noise, quantisation.
-  if (p.psf_sigma_px > 0.0)
-  {
-    cv::GaussianBlur(amb, amb, cv::Size(0, 0), p.psf_sigma_px * S);
-    cv::GaussianBlur(dot, dot, cv::Size(0, 0), p.psf_sigma_px * S);
-  }
-  cv::Mat amb_px, dot_px;
-  cv::resize(amb, amb_px, cv::Size(W, H), 0, 0, cv::INTER_AREA);
-  cv::resize(dot, dot_px, cv::Size(W, H), 0, 0, cv::INTER_AREA);
-  cv::Mat out(H, W, CV_8UC3);
-  std::normal_distribution<double> gauss(0.0, 1.0);
-  for (int v = 0; v < H; ++v)
-    for (int u = 0; u < W; ++u)
-      for (int ch = 0; ch < 3; ++ch)
-      {
-        const double signal = amb_px.at<float>(v, u) + p.dot_bgr_ratio(ch) * dot_px.at<float>(v, u);
-        const double sigma = std::sqrt(p.read_noise_dn * p.read_noise_dn + std::max(0.0, signal) * p.gain_dn_per_electron);
-        const double value = std::round(signal + sigma * gauss(rng));
-        out.at<cv::Vec3b>(v, u)[ch] = static_cast<uint8_t>(std::min(255.0, std::max(0.0, value)));
-      }
-  return out;
+  for (const auto& src : r.sources(proj, &rng))
+    r.addDot(src.first, src.second, alb, &dot);
+  return r.sensor(amb, dot, &rng);
 }
 
 }  // namespace sls_test
