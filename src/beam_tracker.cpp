@@ -42,8 +42,7 @@ void BeamTracker::remember(bool had_prior)
     {
       age_[b] = 0;
     }
-    else if (b < previous_.predicted.size() && previous_.predicted[b].allFinite() &&
-             age_[b] < params_.memory_frames)
+    else if (b < previous_.predicted.size() && previous_.predicted[b].allFinite() && age_[b] < params_.memory_frames)
     {
       previous_.points[b] = previous_.predicted[b];
       ++age_[b];

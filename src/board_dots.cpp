@@ -116,8 +116,8 @@ double edgeMisfit(const std::vector<cv::Mat>& img_windows, const std::vector<cv:
     else
       blurred = alb_windows[k];
     const cv::Size inner(img_windows[k].cols * kPsfSub, img_windows[k].rows * kPsfSub);
-    cv::resize(blurred(cv::Rect(pad * kPsfSub, pad * kPsfSub, inner.width, inner.height)), a, img_windows[k].size(),
-               0, 0, cv::INTER_AREA);
+    cv::resize(blurred(cv::Rect(pad * kPsfSub, pad * kPsfSub, inner.width, inner.height)), a, img_windows[k].size(), 0,
+               0, cv::INTER_AREA);
     Eigen::Matrix2d N = Eigen::Matrix2d::Zero();
     Eigen::Vector2d r = Eigen::Vector2d::Zero();
     double yy = 0.0;
@@ -153,17 +153,17 @@ double measurePsf(const cv::Mat& img, const cv::Mat& albedo, const CameraModel& 
       const Eigen::Vector3d mid = 0.5 * (board.corner(k) + board.corner(k2));
       const cv::Point2d p = camera.project(det.pose * mid);
       const cv::Rect outer(static_cast<int>(std::lround(p.x)) - half - pad,
-                           static_cast<int>(std::lround(p.y)) - half - pad, 2 * (half + pad) + 1,
-                           2 * (half + pad) + 1);
-      if ((outer & cv::Rect(0, 0, albedo.cols, albedo.rows)) != outer || cv::countNonZero(albedo(outer) != albedo(outer)))
+                           static_cast<int>(std::lround(p.y)) - half - pad, 2 * (half + pad) + 1, 2 * (half + pad) + 1);
+      if ((outer & cv::Rect(0, 0, albedo.cols, albedo.rows)) != outer ||
+          cv::countNonZero(albedo(outer) != albedo(outer)))
         continue;
       bool near_dot = false;
       for (const cv::Point2d& q : avoid)
         near_dot |= std::abs(q.x - p.x) < half + 12 && std::abs(q.y - p.y) < half + 12;
       if (near_dot)
         continue;
-      albs.push_back(renderBoardAlbedoWindow(camera, board, det.pose, det.square00_white, black_ratio, outer, kPsfSub,
-                                             8));
+      albs.push_back(
+          renderBoardAlbedoWindow(camera, board, det.pose, det.square00_white, black_ratio, outer, kPsfSub, 8));
       imgs.push_back(img(cv::Rect(outer.x + pad, outer.y + pad, 2 * half + 1, 2 * half + 1)).clone());
     }
   if (imgs.size() < 4)
@@ -252,8 +252,8 @@ std::vector<Candidate> findCandidates(const cv::Mat& dot_light, const cv::Mat& a
                         std::min(-1e-6, static_cast<double>(s.at<float>(v, u - 1) + s.at<float>(v, u + 1) - 2 * c));
       const double oy = 0.5 * (s.at<float>(v - 1, u) - s.at<float>(v + 1, u)) /
                         std::min(-1e-6, static_cast<double>(s.at<float>(v - 1, u) + s.at<float>(v + 1, u) - 2 * c));
-      out.push_back({cv::Point2d(u - std::max(-0.5, std::min(0.5, ox)), v - std::max(-0.5, std::min(0.5, oy))),
-                     c / noise, c});
+      out.push_back(
+          {cv::Point2d(u - std::max(-0.5, std::min(0.5, ox)), v - std::max(-0.5, std::min(0.5, oy))), c / noise, c});
     }
   std::sort(out.begin(), out.end(), [](const Candidate& a, const Candidate& b) { return a.snr > b.snr; });
   return out;
@@ -282,8 +282,8 @@ namespace
 {
 
 // The fitted dot, or false when the window's fit does not describe a dot.
-bool fitDot(const cv::Mat& img, double ambient_dn, const detail::BoardAlbedoSource& src, const Candidate& c,
-            double psf, double clip, double noise, const BoardDotParams& params, BoardDot* dot)
+bool fitDot(const cv::Mat& img, double ambient_dn, const detail::BoardAlbedoSource& src, const Candidate& c, double psf,
+            double clip, double noise, const BoardDotParams& params, BoardDot* dot)
 {
   const int R = params.window_radius_px > 0 ? params.window_radius_px : 10;
   const int cx = static_cast<int>(std::lround(c.p.x)), cy = static_cast<int>(std::lround(c.p.y));
@@ -292,8 +292,7 @@ bool fitDot(const cv::Mat& img, double ambient_dn, const detail::BoardAlbedoSour
     return false;  // beyond the print (or the image), or clipped all over
   detail::DotVector th;
   const double a0 = std::max(1e-3, w.ambientAlbedo(R, R));
-  th << 0.0, ambient_dn, 0.0, 0.0, std::max(1.0, c.peak / a0), c.p.x, c.p.y, std::log(0.25),
-      0.0, std::log(0.25);
+  th << 0.0, ambient_dn, 0.0, 0.0, std::max(1.0, c.peak / a0), c.p.x, c.p.y, std::log(0.25), 0.0, std::log(0.25);
   detail::DotMatrix cov;
   double rms = 0.0;
   if (!detail::fitDotWindow(w, noise, &th, &cov, &rms))
@@ -323,8 +322,8 @@ bool fitDot(const cv::Mat& img, double ambient_dn, const detail::BoardAlbedoSour
 // print whose fit describes a dot.
 std::vector<BoardDot> fitCandidates(const cv::Mat& img, double full_scale, const CameraModel& camera,
                                     const BoardParams& board, const ChessboardDetection& det,
-                                    const BoardDotParams& params, const std::vector<std::pair<Candidate, double>>& starts,
-                                    BoardDotReport* rep)
+                                    const BoardDotParams& params,
+                                    const std::vector<std::pair<Candidate, double>>& starts, BoardDotReport* rep)
 {
   detail::BoardAlbedoSource src;
   src.camera = &camera;
@@ -378,9 +377,9 @@ std::vector<BoardDot> findBoardDots(const cv::Mat& dots_in, double full_scale, c
   cv::Mat img;
   dots_in.convertTo(img, CV_32F);
   const bool measured = params.black_ratio <= 0.0 && det.white_level >= params.min_ambient_dn;
-  rep.black_ratio = params.black_ratio > 0.0 ? params.black_ratio
-                                             : (measured ? std::max(1e-3, det.black_level) / det.white_level
-                                                         : params.default_black_ratio);
+  rep.black_ratio = params.black_ratio > 0.0
+                        ? params.black_ratio
+                        : (measured ? std::max(1e-3, det.black_level) / det.white_level : params.default_black_ratio);
   rep.black_ratio_measured = measured;
   const cv::Mat alb = renderBoardAlbedo(camera, board, det.pose, det.square00_white, rep.black_ratio, img.size());
   // First pass: candidates with the unblurred albedo; they are kept away from
@@ -405,7 +404,8 @@ std::vector<BoardDot> findBoardDots(const cv::Mat& dots_in, double full_scale, c
   rep.pixel_noise_dn = std::max(0.3, robustSigma(img - ambient.mul(alb_blur)));
   std::vector<std::pair<Candidate, double>> starts;  // (candidate, ambient on white there)
   for (const Candidate& c : cands)
-    starts.push_back({c, ambient.at<float>(static_cast<int>(std::lround(c.p.y)), static_cast<int>(std::lround(c.p.x)))});
+    starts.push_back(
+        {c, ambient.at<float>(static_cast<int>(std::lround(c.p.y)), static_cast<int>(std::lround(c.p.x)))});
   out = fitCandidates(img, full_scale, camera, board, det, params, starts, &rep);
   if (report)
     *report = rep;

@@ -62,9 +62,9 @@ bool isImageFile(const fs::path& p)
 // --name value pairs; false on a malformed command line.
 bool parseArgs(const std::vector<std::string>& argv, std::map<std::string, std::string>* args, std::ostream& err)
 {
-  static const std::vector<std::string> known = {"--images", "--camera-info", "--board", "--square",
-                                                 "--output", "--rows",        "--cols",  "--margin",
-                                                 "--projector-color", "--model", "--report"};
+  static const std::vector<std::string> known = {"--images",          "--camera-info", "--board", "--square",
+                                                 "--output",          "--rows",        "--cols",  "--margin",
+                                                 "--projector-color", "--model",       "--report"};
   for (size_t i = 0; i < argv.size(); ++i)
   {
     const std::string a = argv[i];
@@ -94,14 +94,13 @@ bool toNumber(const std::string& s, double* v)
 }
 
 // The calibration's settings from the arguments; false with a message.
-bool paramsFromArgs(const std::map<std::string, std::string>& args, ChessboardCalibrationParams* p,
-                    std::ostream& err)
+bool paramsFromArgs(const std::map<std::string, std::string>& args, ChessboardCalibrationParams* p, std::ostream& err)
 {
   double square = 0.0, v = 0.0;
   if (!parseBoardSize(args.at("--board"), &p->board.cols, &p->board.rows))
   {
-    err << "calibrate_projector: --board must be COLSxROWS inner corners (e.g. 10x8), got '"
-              << args.at("--board") << "'\n";
+    err << "calibrate_projector: --board must be COLSxROWS inner corners (e.g. 10x8), got '" << args.at("--board")
+        << "'\n";
     return false;
   }
   if (!toNumber(args.at("--square"), &square) || !(square > 0.0))
@@ -133,8 +132,9 @@ bool paramsFromArgs(const std::map<std::string, std::string>& args, ChessboardCa
     return false;
   }
   const std::string model = args.count("--model") ? args.at("--model") : "auto";
-  static const std::map<std::string, ProjectorModel> models = {
-      {"auto", ProjectorModel::kChosenByData}, {"central", ProjectorModel::kCentral}, {"per-beam", ProjectorModel::kPerBeam}};
+  static const std::map<std::string, ProjectorModel> models = {{"auto", ProjectorModel::kChosenByData},
+                                                               {"central", ProjectorModel::kCentral},
+                                                               {"per-beam", ProjectorModel::kPerBeam}};
   if (!models.count(model))
   {
     err << "calibrate_projector: --model must be auto, central or per-beam\n";
@@ -210,7 +210,8 @@ int calibrateProjectorMain(const std::vector<std::string>& argv, std::ostream& o
   }
   const ChessboardCalibrationResult res = calibrateFromChessboardViews(camera, views, params);
   out << res.report();
-  const std::string png = args.count("--report") ? args["--report"] : fs::path(args["--output"]).replace_extension(".png").string();
+  const std::string png =
+      args.count("--report") ? args["--report"] : fs::path(args["--output"]).replace_extension(".png").string();
   if (!cv::imwrite(png, drawCalibrationReport(res, params.board)))
     err << "calibrate_projector: cannot write the report '" << png << "'\n";
   if (!res.ok)

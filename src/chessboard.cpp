@@ -128,9 +128,8 @@ bool parseBoardSize(const std::string& text, int* cols, int* rows)
   return true;
 }
 
-bool refineBoardPose(const CameraModel& camera, const BoardParams& params,
-                     const std::vector<cv::Point2d>& corners, const std::vector<char>& used, Eigen::Isometry3d* pose,
-                     double* rms_px)
+bool refineBoardPose(const CameraModel& camera, const BoardParams& params, const std::vector<cv::Point2d>& corners,
+                     const std::vector<char>& used, Eigen::Isometry3d* pose, double* rms_px)
 {
   if (pose->matrix().isIdentity() && !initialPose(camera, params, corners, used, pose))
     return false;
@@ -196,8 +195,8 @@ ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& came
   if (det.why.empty())
     det.why = camera.validate();
   if (det.why.empty() && (img.type() != CV_8UC1 || img.cols != camera.width || img.rows != camera.height))
-    det.why = "the board image must be 8-bit, one channel, of the camera's size " + std::to_string(camera.width) +
-              "x" + std::to_string(camera.height);
+    det.why = "the board image must be 8-bit, one channel, of the camera's size " + std::to_string(camera.width) + "x" +
+              std::to_string(camera.height);
   if (!det.why.empty())
     return det;
   const cv::Size pattern(params.cols, params.rows);
@@ -206,8 +205,8 @@ ChessboardDetection detectChessboard(const cv::Mat& img, const CameraModel& came
   // classic one with cornerSubPix is the fallback.
   bool ok = cv::findChessboardCornersSB(img, pattern, found, cv::CALIB_CB_NORMALIZE_IMAGE);
   if (!ok)
-    ok = cv::findChessboardCorners(img, pattern, found,
-                                   cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK);
+    ok = cv::findChessboardCorners(
+        img, pattern, found, cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE | cv::CALIB_CB_FAST_CHECK);
   if (!ok || static_cast<int>(found.size()) != params.cornerCount())
   {
     det.why = "no chessboard of " + std::to_string(params.cols) + "x" + std::to_string(params.rows) +
@@ -314,7 +313,8 @@ void boardCoordinatesAtCellCorners(const CameraModel& camera, const Eigen::Isome
       const double pu = static_cast<double>(u) / sub / step, pv = static_cast<double>(v) / sub / step;
       const int i = std::min(gw - 2, static_cast<int>(pu)), j = std::min(gh - 2, static_cast<int>(pv));
       const double fu = pu - i, fv = pv - j;
-      const auto lerp = [&](const cv::Mat& g) {
+      const auto lerp = [&](const cv::Mat& g)
+      {
         return (1 - fv) * ((1 - fu) * g.at<double>(j, i) + fu * g.at<double>(j, i + 1)) +
                fv * ((1 - fu) * g.at<double>(j + 1, i) + fu * g.at<double>(j + 1, i + 1));
       };
@@ -355,9 +355,9 @@ float cellAlbedo(const BoardParams& params, bool square00_white, double black_ra
 
 }  // namespace
 
-cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& params,
-                                const Eigen::Isometry3d& pose, bool square00_white, double black_ratio,
-                                const cv::Rect& rect, int subsample, int edge_samples)
+cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& params, const Eigen::Isometry3d& pose,
+                                bool square00_white, double black_ratio, const cv::Rect& rect, int subsample,
+                                int edge_samples)
 {
   const int sub = std::max(1, subsample);
   cv::Mat bx, by;
@@ -387,8 +387,9 @@ cv::Mat renderBoardAlbedo(const CameraModel& camera, const BoardParams& params, 
   for (int k = 0; k <= 64; ++k)
   {
     const double f = k / 64.0;
-    for (const Eigen::Vector3d& b : {Eigen::Vector3d(x0 + f * (x1 - x0), y0, 0), Eigen::Vector3d(x0 + f * (x1 - x0), y1, 0),
-                                     Eigen::Vector3d(x0, y0 + f * (y1 - y0), 0), Eigen::Vector3d(x1, y0 + f * (y1 - y0), 0)})
+    for (const Eigen::Vector3d& b :
+         {Eigen::Vector3d(x0 + f * (x1 - x0), y0, 0), Eigen::Vector3d(x0 + f * (x1 - x0), y1, 0),
+          Eigen::Vector3d(x0, y0 + f * (y1 - y0), 0), Eigen::Vector3d(x1, y0 + f * (y1 - y0), 0)})
     {
       const cv::Point2d p = camera.project(pose * b);
       if (!std::isfinite(p.x))

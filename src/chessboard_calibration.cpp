@@ -170,7 +170,7 @@ ChessboardView analyseChessboardView(const cv::Mat& image, const std::string& na
     double moved = 0.0;
     for (int k = 0; k < params.board.cornerCount(); ++k)
       moved = std::max(moved, cv::norm(camera.project(pose * params.board.corner(k)) -
-                                        camera.project(view.board.pose * params.board.corner(k))));
+                                       camera.project(view.board.pose * params.board.corner(k))));
     view.board.pose = pose;
     view.board.corner_rms_px = rms;
     det.pose = pose;

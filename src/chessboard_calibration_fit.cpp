@@ -203,8 +203,7 @@ std::string unseenBeams(const std::vector<JointFitView>& jvs, int rows, int cols
     if (count[b] < 2)
     {
       if (n++ < 8)
-        s << (n > 1 ? ", " : "") << "beam " << b << " (row " << b / cols << ", col " << b % cols << ") in "
-          << count[b];
+        s << (n > 1 ? ", " : "") << "beam " << b << " (row " << b / cols << ", col " << b % cols << ") in " << count[b];
     }
   if (n > 8)
     s << " and " << n - 8 << " more";
@@ -226,9 +225,8 @@ ChessboardCalibrationResult calibrateFromChessboardViews(const CameraModel& came
     res.failure = CalibrationFailure::kBadInput;
     return res;
   }
-  const auto usable = [&] {
-    return std::count_if(res.views.begin(), res.views.end(), [](const ChessboardView& v) { return v.usable; });
-  };
+  const auto usable = [&]
+  { return std::count_if(res.views.begin(), res.views.end(), [](const ChessboardView& v) { return v.usable; }); };
   const bool any_full = std::any_of(res.views.begin(), res.views.end(),
                                     [](const ChessboardView& v) { return v.usable && v.offset_known; });
   if (usable() >= 2 && !any_full)
@@ -287,8 +285,8 @@ std::string ChessboardCalibrationResult::report() const
       << "      " << std::setw(5) << view.dots.size() << " " << std::setw(8) << view.grid.count << " " << std::setw(4)
       << (fitted ? fit.views[f].dots_used : 0) << "  " << (view.offset_known ? "known " : "-     ") << "  ";
     if (fitted)
-      s << std::setw(7) << fit.views[f].corner_rms_px << " px  " << std::setw(5) << fit.views[f].dot_rms_px
-        << " px  " << std::setw(5) << std::setprecision(1) << fit.views[f].dot_scale << std::setprecision(3) << "  ";
+      s << std::setw(7) << fit.views[f].corner_rms_px << " px  " << std::setw(5) << fit.views[f].dot_rms_px << " px  "
+        << std::setw(5) << std::setprecision(1) << fit.views[f].dot_scale << std::setprecision(3) << "  ";
     else
       s << "      -        -        -    ";
     s << view.name << (view.why.empty() ? "" : ": " + view.why) << "\n";

@@ -69,7 +69,8 @@ void drawTopView(const ChessboardCalibrationResult& res, const BoardParams& boar
   }
   const double zmin = -0.1;
   const double scale = std::min((area.width - 40) / (xmax - xmin), (area.height - 60) / (zmax - zmin));
-  const auto px = [&](double x, double z) {
+  const auto px = [&](double x, double z)
+  {
     return cv::Point(area.x + 20 + static_cast<int>((x - xmin) * scale),
                      area.y + area.height - 30 - static_cast<int>((z - zmin) * scale));
   };
@@ -82,8 +83,7 @@ void drawTopView(const ChessboardCalibrationResult& res, const BoardParams& boar
   for (const Eigen::Isometry3d& p : fit.poses)
   {
     const Eigen::Vector3d a = p * Eigen::Vector3d(-board.square_m, 0.5 * board.rows * board.square_m, 0.0);
-    const Eigen::Vector3d b =
-        p * Eigen::Vector3d(board.cols * board.square_m, 0.5 * board.rows * board.square_m, 0.0);
+    const Eigen::Vector3d b = p * Eigen::Vector3d(board.cols * board.square_m, 0.5 * board.rows * board.square_m, 0.0);
     cv::line(img, px(a.x(), a.z()), px(b.x(), b.z()), {40, 40, 200}, 2, cv::LINE_AA);
   }
   cv::circle(img, px(0, 0), 5, {0, 0, 0}, cv::FILLED);

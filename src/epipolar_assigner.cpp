@@ -318,7 +318,8 @@ CandidateGraph gateCandidates(const BeamGeometry& geometry, const std::vector<Ei
 
 EpipolarAssignment assignEpipolar(const BeamGeometry& geometry, const TriangulatorParams& params,
                                   const std::vector<Eigen::Vector2d>& spots_px,
-                                  const std::vector<Eigen::Vector2d>* previous_px, const std::vector<uint8_t>* remembered)
+                                  const std::vector<Eigen::Vector2d>* previous_px,
+                                  const std::vector<uint8_t>* remembered)
 {
   return EpipolarAssigner(geometry, params, spots_px).run(previous_px, remembered);
 }

@@ -86,8 +86,7 @@ double trackingRadius(const TriangulatorParams& params, double spread_px);
 // prediction (the dot was missing last frame; BeamTracker's memory).
 int applyTrackingPrior(const BeamGeometry& geometry, const TriangulatorParams& params,
                        const std::vector<Eigen::Vector2d>& spots_px, const std::vector<Eigen::Vector2d>& previous_px,
-                       CandidateGraph* graph, Assignment* assignment,
-                       std::vector<Eigen::Vector2d>* track_px = nullptr,
+                       CandidateGraph* graph, Assignment* assignment, std::vector<Eigen::Vector2d>* track_px = nullptr,
                        const std::vector<uint8_t>* remembered = nullptr);
 
 // Stage 3b (line_reader.cpp): joint reading of the grid lines whose beams

@@ -53,9 +53,8 @@ int JointProblem::dotJacobian(const State& st, int v, int j, Eigen::Matrix<doubl
   const JointFitView& view = views_[v];
   const int beam = view.dot_beam[j];
   const int nb = st.central ? 5 : 4;
-  const auto residual = [&](const Eigen::Isometry3d& pose, const BeamRay& ray) {
-    return dotResidual(cam_, pose, ray, view.dot_px[j]);
-  };
+  const auto residual = [&](const Eigen::Isometry3d& pose, const BeamRay& ray)
+  { return dotResidual(cam_, pose, ray, view.dot_px[j]); };
   *r0 = residual(st.poses[v], st.ray(beam));
   for (int p = 0; p < 6; ++p)
   {
@@ -245,7 +244,8 @@ bool JointProblem::reweigh(const State& st, Weights* w, bool robust) const
   normalisedSquares(st, *w, &corner_r2, &dot_r2);
   bool changed = false;
   const double t2 = square(params_.outlier_threshold);
-  const auto flag = [&](double r2, char* in, double* rw) {
+  const auto flag = [&](double r2, char* in, double* rw)
+  {
     // Untestable (leverage 1): kept with full weight.
     const char now = robust || std::isnan(r2) || r2 <= t2;
     *rw = robust && std::isfinite(r2) ? 1.0 / (1.0 + r2 / 9.0) : 1.0;
@@ -295,8 +295,8 @@ bool fitRounds(const JointProblem& prob, State* st, Weights* w)
     const bool flags = prob.reweigh(*st, w, false);
     double change = 0.0;
     for (size_t v = 0; v < before_c.size(); ++v)
-      change = std::max({change, std::abs(w->corner_sigma[v] / before_c[v] - 1.0),
-                         std::abs(w->dot_scale[v] / before_d[v] - 1.0)});
+      change = std::max(
+          {change, std::abs(w->corner_sigma[v] / before_c[v] - 1.0), std::abs(w->dot_scale[v] / before_d[v] - 1.0)});
     if (!flags && change < 0.02)
       break;
   }

@@ -32,10 +32,7 @@ struct State
 
   int poseIndex(int v) const { return 6 * v; }
   int centreIndex() const { return 6 * static_cast<int>(poses.size()); }
-  int beamIndex(int i) const
-  {
-    return central ? centreIndex() + 3 + 2 * i : centreIndex() + 4 * i;
-  }
+  int beamIndex(int i) const { return central ? centreIndex() + 3 + 2 * i : centreIndex() + 4 * i; }
   int beamParams() const { return central ? 2 : 4; }
   int size() const { return beamIndex(static_cast<int>(beam.size())); }
 

@@ -304,7 +304,6 @@ std::string JointFitParams::validate() const
   return s;
 }
 
-
 JointFitResult fitProjectorJoint(const CameraModel& camera, int rows, int cols, const std::vector<JointFitView>& views,
                                  const JointFitParams& params)
 {
@@ -345,10 +344,9 @@ JointFitResult fitProjectorJoint(const CameraModel& camera, int rows, int cols, 
     res.dof_per_beam = usedObservations(w_central) - per_beam.size();
     res.chi2_per_beam = prob.cost(per_beam, w_central);
     const int extra = per_beam.size() - n_central;
-    res.f_statistic = ((res.chi2_central - res.chi2_per_beam) / extra) /
-                      (res.chi2_per_beam / std::max(1, res.dof_per_beam));
-    const double critical =
-        1.0 + params.model_choice_z * std::sqrt(2.0 / extra + 2.0 / std::max(1, res.dof_per_beam));
+    res.f_statistic =
+        ((res.chi2_central - res.chi2_per_beam) / extra) / (res.chi2_per_beam / std::max(1, res.dof_per_beam));
+    const double critical = 1.0 + params.model_choice_z * std::sqrt(2.0 / extra + 2.0 / std::max(1, res.dof_per_beam));
     Weights w_pb = w_central;
     if (params.model == ProjectorModel::kPerBeam || res.f_statistic > critical)
     {

@@ -159,8 +159,7 @@ std::vector<Eigen::Vector2d> affinePrediction(const PriorInput& in, const Affine
 
 // The candidates within `radius` of each primed beam's prediction: per beam
 // the last one found and how many, per spot how many beams claim it.
-Prediction gather(const PriorInput& in, const std::vector<Eigen::Vector2d>& track_px,
-                  const std::vector<double>& radius)
+Prediction gather(const PriorInput& in, const std::vector<Eigen::Vector2d>& track_px, const std::vector<double>& radius)
 {
   const int n_beams = in.geometry.beamCount();
   Prediction p;
@@ -251,7 +250,8 @@ double trackingRadius(const TriangulatorParams& params, double spread_px)
   // spurious spot falls into it 1 / (5 sigma / radius)^2 less often.
   if (!std::isfinite(spread_px) || params.tracking_sigmas <= 0.0)
     return params.tracking_radius_px;
-  return std::min(params.tracking_radius_px, std::max(params.min_tracking_radius_px, params.tracking_sigmas * spread_px));
+  return std::min(params.tracking_radius_px,
+                  std::max(params.min_tracking_radius_px, params.tracking_sigmas * spread_px));
 }
 
 int applyTrackingPrior(const BeamGeometry& geometry, const TriangulatorParams& params,

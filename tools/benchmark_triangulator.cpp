@@ -53,8 +53,8 @@ void benchmarkSequences(int frames)
         wrong += got >= 0 && got != truth;
       }
     std::cout << "roll " << roll * 180.0 / M_PI << " deg, sequence with BeamTracker: " << ms / frames << " ms/frame, "
-              << right << "/" << visible << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), "
-              << wrong << " wrong (look-alikes included)\n";
+              << right << "/" << visible << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong
+              << " wrong (look-alikes included)\n";
   }
 }
 

@@ -67,8 +67,8 @@ private:
 
   BeamTrackerParams params_;
   std::shared_ptr<const Triangulator> owner_;  // made the previous result; null = none kept
-  TriangulationResult previous_;  // the last result, with the remembered predictions as points
-  std::vector<int> age_;          // per beam: frames since its dot was seen (remembered while <= memory_frames)
+  TriangulationResult previous_;               // the last result, with the remembered predictions as points
+  std::vector<int> age_;  // per beam: frames since its dot was seen (remembered while <= memory_frames)
   double previous_stamp_s_ = 0.0;
 };
 

@@ -70,19 +70,19 @@ struct BoardDot
   double fit_rms = 0.0;      // RMS residual of the window fit over its noise (about 1 for a clean dot)
   int clipped = 0;           // clipped pixels left out
   Eigen::Vector2d board_xy = Eigen::Vector2d::Zero();  // metres, board frame
-  double black_fraction = 0.0;  // share of the dot's light on black squares (0 = all on white)
+  double black_fraction = 0.0;                         // share of the dot's light on black squares (0 = all on white)
 };
 
 struct BoardDotReport
 {
-  double black_ratio = 0.0;   // used
+  double black_ratio = 0.0;  // used
   bool black_ratio_measured = false;
-  double psf_sigma_px = 0.0;  // used
+  double psf_sigma_px = 0.0;    // used
   double noise_dn = 0.0;        // robust noise of the smoothed dot light on white squares (DN)
   double noise_black_dn = 0.0;  // same on black squares
   double pixel_noise_dn = 0.0;  // robust noise of one pixel of the dot channel
-  int candidates = 0;         // peaks above min_snr
-  int rejected = 0;           // candidates whose fit failed or that lie beyond the print
+  int candidates = 0;           // peaks above min_snr
+  int rejected = 0;             // candidates whose fit failed or that lie beyond the print
 };
 
 // Dots on the board of `detection` (found == true expected). `dots` is the

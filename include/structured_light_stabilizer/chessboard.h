@@ -35,8 +35,8 @@ namespace structured_light_stabilizer
 
 struct BoardParams
 {
-  int cols = 10;          // inner corners along a row (OpenCV patternSize.width)
-  int rows = 8;           // inner corners along a column (patternSize.height)
+  int cols = 10;           // inner corners along a row (OpenCV patternSize.width)
+  int rows = 8;            // inner corners along a column (patternSize.height)
   double square_m = 0.08;  // side of a square, metres
   // Printed white margin around the outer squares that dots may use
   // (metres); beyond it the albedo is unknown and dots there are not used.
@@ -45,10 +45,7 @@ struct BoardParams
   // Empty when usable, otherwise why not.
   std::string validate() const;
   // Board coordinates (metres) of inner corner k.
-  Eigen::Vector3d corner(int k) const
-  {
-    return Eigen::Vector3d((k % cols) * square_m, (k / cols) * square_m, 0.0);
-  }
+  Eigen::Vector3d corner(int k) const { return Eigen::Vector3d((k % cols) * square_m, (k / cols) * square_m, 0.0); }
   int cornerCount() const { return cols * rows; }
 };
 
@@ -58,15 +55,15 @@ bool parseBoardSize(const std::string& text, int* cols, int* rows);
 struct ChessboardDetection
 {
   bool found = false;
-  std::string why;                  // why not found (empty when found)
+  std::string why;                   // why not found (empty when found)
   std::vector<cv::Point2d> corners;  // distorted px, OpenCV order (row-major)
   std::vector<char> corner_used;     // per corner: used by the pose (0 = dropped, e.g. a dot next to it)
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  // board -> camera optical frame
-  double corner_rms_px = 0.0;        // RMS reprojection residual of the used corners
-  bool square00_white = true;        // colour of square (0, 0), measured
-  double white_level = 0.0;          // median of the white squares' centres in the board image (DN)
-  double black_level = 0.0;          // same for the black squares
-  int corner_window_px = 0;          // half-size of the sub-pixel refinement window
+  double corner_rms_px = 0.0;                              // RMS reprojection residual of the used corners
+  bool square00_white = true;                              // colour of square (0, 0), measured
+  double white_level = 0.0;  // median of the white squares' centres in the board image (DN)
+  double black_level = 0.0;  // same for the black squares
+  int corner_window_px = 0;  // half-size of the sub-pixel refinement window
 };
 
 // Finds the chessboard in an 8-bit one-channel image (the channel with the
@@ -74,16 +71,14 @@ struct ChessboardDetection
 // sub-pixel, estimates the pose and measures the square colours. found =
 // false with `why` when there is no board, when it is cut by the image edge
 // or when the pose is degenerate.
-ChessboardDetection detectChessboard(const cv::Mat& board_image, const CameraModel& camera,
-                                     const BoardParams& params);
+ChessboardDetection detectChessboard(const cv::Mat& board_image, const CameraModel& camera, const BoardParams& params);
 
 // Pose of the board from its corners (distorted px) by Levenberg-Marquardt
 // on the reprojection error, starting from *pose (identity: from a planar
 // PnP on the undistorted corners). Corners with used[k] == 0 are ignored.
 // Returns false when fewer than 4 corners are usable or the fit diverges.
-bool refineBoardPose(const CameraModel& camera, const BoardParams& params,
-                     const std::vector<cv::Point2d>& corners, const std::vector<char>& used, Eigen::Isometry3d* pose,
-                     double* rms_px);
+bool refineBoardPose(const CameraModel& camera, const BoardParams& params, const std::vector<cv::Point2d>& corners,
+                     const std::vector<char>& used, Eigen::Isometry3d* pose, double* rms_px);
 
 // Reflectance of the board at board coordinates (x, y) metres: 1 on white,
 // `black_ratio` on black, 1 on the margin, NaN beyond it.
@@ -100,9 +95,9 @@ cv::Mat renderBoardAlbedo(const CameraModel& camera, const BoardParams& params, 
 // The same over the pixels of `rect` divided `subsample` times per pixel:
 // CV_32F of rect.size() * subsample, cell (i, j) covering pixel coordinates
 // [rect.x - 0.5 + i / subsample, ... + 1 / subsample) likewise in y.
-cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& params,
-                                const Eigen::Isometry3d& pose, bool square00_white, double black_ratio,
-                                const cv::Rect& rect, int subsample, int edge_samples = 16);
+cv::Mat renderBoardAlbedoWindow(const CameraModel& camera, const BoardParams& params, const Eigen::Isometry3d& pose,
+                                bool square00_white, double black_ratio, const cv::Rect& rect, int subsample,
+                                int edge_samples = 16);
 
 // Where the camera ray through a distorted pixel meets the board plane, in
 // board coordinates (x, y); false when it misses (parallel or behind).

@@ -62,12 +62,12 @@ struct ChessboardView
   std::string why;  // why not usable, or why skipped in the calibration
   ChessboardDetection board;
   BoardDotReport dot_report;
-  std::vector<BoardDot> dots;  // on the print
-  DotGrid grid;                // their labels (relative)
-  int corners_near_dots = 0;   // corners not used: a dot within reach of their window
-  bool offset_known = false;   // the beam numbers are fixed
+  std::vector<BoardDot> dots;          // on the print
+  DotGrid grid;                        // their labels (relative)
+  int corners_near_dots = 0;           // corners not used: a dot within reach of their window
+  bool offset_known = false;           // the beam numbers are fixed
   int row_offset = 0, col_offset = 0;  // beam = (row + row_offset) * cols + col + col_offset
-  bool used = false;           // in the joint fit
+  bool used = false;                   // in the joint fit
 
   // Beam of dot k (-1: unlabelled or the offset is not known).
   int beamOf(size_t k, int cols) const
@@ -82,10 +82,10 @@ ChessboardView analyseChessboardView(const cv::Mat& image, const std::string& na
 enum class CalibrationFailure
 {
   kNone,
-  kBadInput,      // params or camera unusable
-  kTooFewViews,   // fewer than two views with a board and dots
-  kNoFullView,    // no view shows the whole pattern, so no beam numbers
-  kBeamNotSeen,   // a beam in fewer than two views
+  kBadInput,     // params or camera unusable
+  kTooFewViews,  // fewer than two views with a board and dots
+  kNoFullView,   // no view shows the whole pattern, so no beam numbers
+  kBeamNotSeen,  // a beam in fewer than two views
   kFitFailed,
 };
 

@@ -44,7 +44,7 @@ struct DotGrid
   std::vector<char> labelled;  // per input point
   std::vector<int> row, col;   // per input point, relative labels (valid where labelled)
   int min_row = 0, max_row = -1, min_col = 0, max_col = -1;
-  int count = 0;  // labelled points
+  int count = 0;          // labelled points
   double pitch_px = 0.0;  // median step between neighbouring labelled dots
 
   int rowSpan() const { return count > 0 ? max_row - min_row + 1 : 0; }

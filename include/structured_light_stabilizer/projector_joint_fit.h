@@ -73,7 +73,7 @@ struct JointFitParams
   // a pixel off), which extra parameters absorb (measured: F 1.4 on four
   // simulated views of a central projector; optics with +-4 mm origins: F 8).
   double model_choice_z = 6.0;
-  int max_iterations = 200;        // Levenberg-Marquardt iterations per round
+  int max_iterations = 200;  // Levenberg-Marquardt iterations per round
 
   std::string validate() const;
 };
@@ -99,8 +99,8 @@ struct JointFitBeamReport
 struct JointFitOutlier
 {
   int view = 0;
-  int beam = -1;    // -1: a corner
-  int index = 0;    // corner or dot index in the view
+  int beam = -1;  // -1: a corner
+  int index = 0;  // corner or dot index in the view
   double residual_px = 0.0;
 };
 
@@ -108,14 +108,14 @@ struct JointFitResult
 {
   bool ok = false;
   std::string error;
-  ProjectorCalibration calibration;  // rows x cols rays in the camera frame
-  ProjectorModel model = ProjectorModel::kCentral;  // the one kept
+  ProjectorCalibration calibration;                  // rows x cols rays in the camera frame
+  ProjectorModel model = ProjectorModel::kCentral;   // the one kept
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();  // common centre of projection (least squares for per-beam)
   std::vector<Eigen::Isometry3d> poses;              // refined board -> camera, per view
   std::vector<JointFitViewReport> views;
   std::vector<JointFitBeamReport> beams;
   std::vector<JointFitOutlier> outliers;
-  double reference_depth_m = 0.0;  // mean board distance, where sigma_m is given
+  double reference_depth_m = 0.0;                  // mean board distance, where sigma_m is given
   double chi2_central = 0.0, chi2_per_beam = 0.0;  // with the final weights (0 when not fitted)
   int dof_central = 0, dof_per_beam = 0;
   double f_statistic = 0.0;  // of the per-beam model against the central one (0 when not compared)

@@ -130,9 +130,10 @@ private:
     sub_image_ = it_->subscribe("camera/image_raw", 1, &ProjectorCalibratorNodelet::imageCb, this,
                                 image_transport::TransportHints("raw", ros::TransportHints(), pnh));
     sub_info_ = nh.subscribe("camera/camera_info", 1, &ProjectorCalibratorNodelet::infoCb, this);
-    NODELET_INFO("ProjectorCalibrator: chessboard %s of %.4f m squares; show it to the camera at 1.2-1.6 m, tilted "
-                 "up to 20 deg, with every dot on the print in at least two views, and call %s for each of %d views",
-                 board.c_str(), p.board.square_m, srv_capture_.getService().c_str(), views_wanted_);
+    NODELET_INFO(
+        "ProjectorCalibrator: chessboard %s of %.4f m squares; show it to the camera at 1.2-1.6 m, tilted "
+        "up to 20 deg, with every dot on the print in at least two views, and call %s for each of %d views",
+        board.c_str(), p.board.square_m, srv_capture_.getService().c_str(), views_wanted_);
   }
 
   void imageCb(const sensor_msgs::ImageConstPtr& msg)

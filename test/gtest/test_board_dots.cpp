@@ -120,9 +120,9 @@ TEST(BoardDots, PoseAndDotCentresOnTiltedBoards)
     BoardDotReport rep;
     const std::vector<BoardDot> dots = findBoardDots(ch[1], 255.0, cam, sp.board, det, BoardDotParams(), &rep);
     std::cout << "[ MEASURE ] view " << v << ": corners rms " << det.corner_rms_px << " px, pose worst " << pose_mm
-              << " mm, black ratio " << rep.black_ratio << (rep.black_ratio_measured ? " (measured)" : "")
-              << ", psf " << rep.psf_sigma_px << " px, noise " << rep.noise_dn << " / " << rep.noise_black_dn << " DN, candidates " << rep.candidates
-              << ", rejected " << rep.rejected << ", dots " << dots.size() << "\n";
+              << " mm, black ratio " << rep.black_ratio << (rep.black_ratio_measured ? " (measured)" : "") << ", psf "
+              << rep.psf_sigma_px << " px, noise " << rep.noise_dn << " / " << rep.noise_black_dn << " DN, candidates "
+              << rep.candidates << ", rejected " << rep.rejected << ", dots " << dots.size() << "\n";
     scoreView(cam, sp.board, dots, truth, &st);
     for (const cv::Point2d& h : truth.hit_pixels)
     {
@@ -138,8 +138,8 @@ TEST(BoardDots, PoseAndDotCentresOnTiltedBoards)
             << " not a dot; centre RMS " << rms << " px (worst " << st.worst << "), on white "
             << std::sqrt(st.sum2_white / std::max(1, st.n_white)) << " px (" << st.n_white << "), straddling an edge "
             << std::sqrt(st.sum2_edge / std::max(1, st.n_edge)) << " px (" << st.n_edge << "), on black "
-            << std::sqrt(st.sum2_black / std::max(1, st.n_black)) << " px (" << st.n_black << "), error over the fitted sigma "
-            << std::sqrt(st.pull2 / std::max(1, st.found)) << " RMS\n";
+            << std::sqrt(st.sum2_black / std::max(1, st.n_black)) << " px (" << st.n_black
+            << "), error over the fitted sigma " << std::sqrt(st.pull2 / std::max(1, st.found)) << " RMS\n";
   // Every dot in scope found (a dot nearer the print's border than its
   // window may be found too), none that is not a dot.
   EXPECT_GE(st.found, st.on_print);

@@ -64,8 +64,8 @@ ToolRun run(const std::vector<std::string>& args)
 
 std::vector<std::string> args(const fs::path& dir, const fs::path& output, const std::string& camera = kCamera)
 {
-  return {"--images", dir.string(), "--camera-info", camera, "--board", "10x8", "--square", "0.08",
-          "--output", output.string()};
+  return {"--images", dir.string(), "--camera-info", camera,     "--board",
+          "10x8",     "--square",   "0.08",          "--output", output.string()};
 }
 
 class CalibrateProjectorTool : public ::testing::Test
@@ -82,7 +82,11 @@ protected:
     rock_ = rockImage(75);
     half_ = {boardImage(1.40, 0.2, 0.1, 0.3, 76), boardImage(1.50, -0.2, -0.2, 0.3, 77)};
   }
-  static void TearDownTestSuite() { if (!getenv("SLS_KEEP_TMP")) fs::remove_all(root_); }
+  static void TearDownTestSuite()
+  {
+    if (!getenv("SLS_KEEP_TMP"))
+      fs::remove_all(root_);
+  }
 
   fs::path folder(const std::string& name, const std::vector<cv::Mat>& images)
   {
@@ -136,7 +140,7 @@ TEST_F(CalibrateProjectorTool, RefusalsExitWithTheirStatusAndNameTheProblem)
   // Bad usage.
   EXPECT_EQ(run({"--images", root_.string()}).status, 1);
   ToolRun r = run({"--images", root_.string(), "--camera-info", kCamera, "--board", "10by8", "--square", "0.08",
-               "--output", out.string()});
+                   "--output", out.string()});
   EXPECT_EQ(r.status, 1);
   EXPECT_NE(r.err.find("--board"), std::string::npos) << r.err;
   // The camera_info.

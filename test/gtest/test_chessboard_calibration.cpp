@@ -33,7 +33,7 @@ struct BoardPose
 };
 
 // The #19 views: 1.2-1.6 m, tilts up to +-20 deg (0.35 rad).
-const BoardPose kViews[] = {{1.20, 0.30, 0.10, 0.05, 0.02, 0.0},  {1.30, -0.25, 0.30, -0.04, -0.03, 0.02},
+const BoardPose kViews[] = {{1.20, 0.30, 0.10, 0.05, 0.02, 0.0},   {1.30, -0.25, 0.30, -0.04, -0.03, 0.02},
                             {1.40, 0.05, -0.34, 0.02, 0.0, -0.03}, {1.45, -0.34, -0.15, 0.0, 0.03, 0.01},
                             {1.55, 0.20, 0.25, 0.06, -0.02, 0.0},  {1.60, -0.10, 0.34, -0.03, 0.0, 0.03}};
 
@@ -220,13 +220,14 @@ TEST(ChessboardCalibration, SixSimulatedViewsAtAnyTilt)
     int wrong = 0, points = 0;
     const double depth = rockDepthRms(run.result.fit.calibration, 1.5, seed0, &wrong, &points);
     int wrong_truth = 0, points_truth = 0;
-    const double depth_truth = rockDepthRms(Simulator(boardScene(kViews[0], seed0)).projector(), 1.5, seed0,
-                                            &wrong_truth, &points_truth);
+    const double depth_truth =
+        rockDepthRms(Simulator(boardScene(kViews[0], seed0)).projector(), 1.5, seed0, &wrong_truth, &points_truth);
     std::cout << run.result.report();
     std::cout << "[ MEASURE ] seeds " << seed0 << "+: rays at 1.5 m " << run.ray_rms * 1e3 << " mm RMS (worst "
-              << run.ray_worst * 1e3 << " mm); rock at 1.5 m, depth RMS " << depth * 100 << " % of z with the fitted rays ("
-              << depth_truth * 100 << " % with the true ones, same 0.03 px centroids), " << points << " points, "
-              << wrong << " wrong beams\n";
+              << run.ray_worst * 1e3 << " mm); rock at 1.5 m, depth RMS " << depth * 100
+              << " % of z with the fitted rays (" << depth_truth * 100
+              << " % with the true ones, same 0.03 px centroids), " << points << " points, " << wrong
+              << " wrong beams\n";
     EXPECT_EQ(run.result.fit.model, ProjectorModel::kCentral);
     EXPECT_LE(run.ray_rms, 0.5e-3);  // #19
     EXPECT_LE(depth, 0.001);         // #19: <= 0.1 % of z
@@ -246,7 +247,8 @@ TEST(ChessboardCalibration, BadViewsAreReportedAndSkippedOrDownWeighted)
   std::vector<ChessboardView> good;
   cv::Mat first;
   for (int v = 0; v < 6; ++v)
-    good.push_back(renderAndAnalyse(boardScene(kViews[v], seed0 + v), "view " + std::to_string(v), v == 2 ? &first : nullptr));
+    good.push_back(
+        renderAndAnalyse(boardScene(kViews[v], seed0 + v), "view " + std::to_string(v), v == 2 ? &first : nullptr));
   const CalibrationRun base = calibrate(good, boardScene(kViews[0], seed0));
   ASSERT_TRUE(base.result.ok) << base.result.report();
   std::vector<ChessboardView> all = good;
@@ -282,14 +284,16 @@ TEST(ChessboardCalibration, BadViewsAreReportedAndSkippedOrDownWeighted)
         xs.push_back(on.pixels[b].x);
     std::sort(xs.begin(), xs.end());
     x_cut = xs[xs.size() / 3];
-    off.image(cv::Rect(0, 0, static_cast<int>(x_cut), img.rows)).copyTo(img(cv::Rect(0, 0, static_cast<int>(x_cut), img.rows)));
+    off.image(cv::Rect(0, 0, static_cast<int>(x_cut), img.rows))
+        .copyTo(img(cv::Rect(0, 0, static_cast<int>(x_cut), img.rows)));
     all.push_back(analyseChessboardView(img, "a third hidden", sim.camera(), calibrationParams(sp)));
   }
   const CalibrationRun run = calibrate(all, boardScene(kViews[0], seed0));
   ASSERT_TRUE(run.result.ok) << run.result.report();
   std::cout << run.result.report();
   const auto& views = run.result.views;
-  const auto scale = [&](size_t v) {
+  const auto scale = [&](size_t v)
+  {
     const auto it = std::find(run.result.fit_views.begin(), run.result.fit_views.end(), static_cast<int>(v));
     return it == run.result.fit_views.end() ? -1.0 : run.result.fit.views[it - run.result.fit_views.begin()].dot_scale;
   };

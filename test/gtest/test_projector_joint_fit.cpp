@@ -167,15 +167,15 @@ TEST(ProjectorJointFit, CentralProjectorFromSixTiltedViews)
     const double depth = depthRmsFraction(cam, truth, res.calibration, 1.5, variant == 0 ? 500 : 900, &wrong);
     std::cout << "[ MEASURE ] seeds " << seed0 << "+: model " << projectorModelName(res.model) << " (F "
               << res.f_statistic << ", chi2/dof central " << res.chi2_central / res.dof_central << ", per beam "
-              << res.chi2_per_beam / res.dof_per_beam << "), rays at 1.5 m " << rms * 1e3 << " mm RMS (worst " << worst * 1e3
-              << "), error over the predicted sigma " << pull << " RMS, centre "
+              << res.chi2_per_beam / res.dof_per_beam << "), rays at 1.5 m " << rms * 1e3 << " mm RMS (worst "
+              << worst * 1e3 << "), error over the predicted sigma " << pull << " RMS, centre "
               << (res.centre - truth.beams[0].origin).norm() * 1e3 << " mm off, board poses within " << pose_mm
               << " mm, depth RMS " << depth * 100 << " % of z, wrong beams " << wrong << "\n";
     EXPECT_EQ(res.model, ProjectorModel::kCentral);
     EXPECT_LT(rms, 0.1e-3);  // #19: <= 0.5 mm; 0.05 % of z needs about 0.1 mm
     EXPECT_LT(worst, 0.5e-3);
     EXPECT_LT(pull, 2.0);
-    EXPECT_LT(depth, 0.0005);   // #19's goal: 0.05 % of z
+    EXPECT_LT(depth, 0.0005);  // #19's goal: 0.05 % of z
     EXPECT_EQ(wrong, 0);
     // The fit weighs the dots with a 0.03 px model floor, the generator
     // draws white dots with 0.02 px: a few black dots may cross 4.5 sigma.
@@ -233,7 +233,7 @@ TEST(ProjectorJointFit, OutliersAndANoisyViewDoNotMoveTheFit)
   {
     clean.push_back(syntheticView(cam, truth, board, poses[v], SyntheticViewOptions(), 31 + v));
     SyntheticViewOptions o;
-    o.outliers = v == 2 ? 4 : 0;          // a reflection and a finger
+    o.outliers = v == 2 ? 4 : 0;         // a reflection and a finger
     o.noise_scale = v == 4 ? 8.0 : 1.0;  // a blurred view
     spoiled.push_back(syntheticView(cam, truth, board, poses[v], o, 31 + v, &moved));
   }
@@ -271,8 +271,8 @@ TEST(ProjectorJointFit, RefusalsNameTheProblem)
   // Beam 7 only in the first view.
   for (size_t j = 0; j < two[1].dot_beam.size(); ++j)
     if (two[1].dot_beam[j] == 7)
-      two[1].dot_beam.erase(two[1].dot_beam.begin() + j),
-      two[1].dot_px.erase(two[1].dot_px.begin() + j), two[1].dot_sigma_px.erase(two[1].dot_sigma_px.begin() + j);
+      two[1].dot_beam.erase(two[1].dot_beam.begin() + j), two[1].dot_px.erase(two[1].dot_px.begin() + j),
+          two[1].dot_sigma_px.erase(two[1].dot_sigma_px.begin() + j);
   const JointFitResult r = fitProjectorJoint(cam, 10, 10, two);
   EXPECT_FALSE(r.ok);
   EXPECT_NE(r.error.find("beam 7"), std::string::npos) << r.error;
@@ -302,8 +302,8 @@ TEST(ProjectorJointFit, EveryDistortionModel)
     ASSERT_TRUE(res.ok) << res.error;
     double rms = 0.0, worst = 0.0;
     rayErrorAt(res.calibration, truth, 1.5, &rms, &worst);
-    std::cout << "[ MEASURE ] " << CameraModel::distortionModelName(cam.distortion) << ": rays at 1.5 m "
-              << rms * 1e3 << " mm RMS (worst " << worst * 1e3 << ")\n";
+    std::cout << "[ MEASURE ] " << CameraModel::distortionModelName(cam.distortion) << ": rays at 1.5 m " << rms * 1e3
+              << " mm RMS (worst " << worst * 1e3 << ")\n";
     EXPECT_LT(rms, 0.1e-3);
   }
 }

@@ -37,7 +37,7 @@ using namespace structured_light_stabilizer;
 
 struct ChessboardSceneParams
 {
-  BoardParams board;             // 10 x 8 inner corners of 8 cm by default
+  BoardParams board;                 // 10 x 8 inner corners of 8 cm by default
   double white = 0.5, black = 0.03;  // reflectances of the print (black ~16x dimmer)
   double ambient_dn = 120.0;         // DN of the white print under the ambient light (0 = night)
   double dot_peak_dn = 150.0;        // peak DN a dot adds on the white print at 1.5 m, normal incidence
@@ -56,9 +56,9 @@ struct ChessboardSceneParams
 struct ChessboardSceneTruth
 {
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();  // board -> camera
-  std::vector<cv::Point2d> corners;                         // exact distorted pixels
-  std::vector<Eigen::Vector3d> hits;                        // per beam, camera frame; NaN = not on the board / hidden
-  std::vector<cv::Point2d> hit_pixels;                      // per beam, distorted pixel of the hit; NaN likewise
+  std::vector<cv::Point2d> corners;                        // exact distorted pixels
+  std::vector<Eigen::Vector3d> hits;                       // per beam, camera frame; NaN = not on the board / hidden
+  std::vector<cv::Point2d> hit_pixels;                     // per beam, distorted pixel of the hit; NaN likewise
 };
 
 // Board -> camera pose looking at the board's centre from `distance` metres
@@ -69,10 +69,10 @@ inline Eigen::Isometry3d boardPoseFacing(const BoardParams& b, double distance, 
                                          double roll = 0.0, const Eigen::Vector3d& offset = Eigen::Vector3d::Zero())
 {
   const Eigen::Vector3d centre(0.5 * (b.cols - 1) * b.square_m, 0.5 * (b.rows - 1) * b.square_m, 0.0);
-  const Eigen::Matrix3d R = (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) *
-                             Eigen::AngleAxisd(tilt_y, Eigen::Vector3d::UnitY()) *
-                             Eigen::AngleAxisd(tilt_x, Eigen::Vector3d::UnitX()))
-                                .toRotationMatrix();
+  const Eigen::Matrix3d R =
+      (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) * Eigen::AngleAxisd(tilt_y, Eigen::Vector3d::UnitY()) *
+       Eigen::AngleAxisd(tilt_x, Eigen::Vector3d::UnitX()))
+          .toRotationMatrix();
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
   pose.linear() = R;
   pose.translation() = Eigen::Vector3d(0.0, 0.0, distance) + offset - R * centre;
@@ -105,8 +105,15 @@ class BoardRenderer
 {
 public:
   BoardRenderer(const CameraModel& cam, const ChessboardSceneParams& p, const Eigen::Isometry3d& pose)
-    : cam_(cam), p_(p), pose_(pose), inv_(pose.inverse()), n_(pose.linear().col(2)), t_(pose.translation()),
-      S_(std::max(1, p.supersample)), W_(cam.width), H_(cam.height)
+    : cam_(cam),
+      p_(p),
+      pose_(pose),
+      inv_(pose.inverse()),
+      n_(pose.linear().col(2)),
+      t_(pose.translation()),
+      S_(std::max(1, p.supersample)),
+      W_(cam.width),
+      H_(cam.height)
   {
     // Undistorted ray directions on an exact grid every 4 px (pixel coords).
     gw_ = W_ / kStep + 2;
@@ -125,7 +132,8 @@ public:
     const int j = std::min(gh_ - 2, std::max(0, static_cast<int>(gv)));
     const double fu = gu - i, fv = gv - j;
     const auto at = [&](int di, int dj) { return grid_[static_cast<size_t>(j + dj) * gw_ + i + di]; };
-    const Eigen::Vector2d xy = (1 - fv) * ((1 - fu) * at(0, 0) + fu * at(1, 0)) + fv * ((1 - fu) * at(0, 1) + fu * at(1, 1));
+    const Eigen::Vector2d xy =
+        (1 - fv) * ((1 - fu) * at(0, 0) + fu * at(1, 0)) + fv * ((1 - fu) * at(0, 1) + fu * at(1, 1));
     return Eigen::Vector3d(xy.x(), xy.y(), 1.0);
   }
 
@@ -178,8 +186,8 @@ public:
       {
         const double x = (u + 0.5) / S_ - 0.5, y = (v + 0.5) / S_ - 0.5;
         double a = albedoAtPixel(x, y);
-        if (albedoAtPixel(x - h, y - h) != a || albedoAtPixel(x + h, y - h) != a ||
-            albedoAtPixel(x - h, y + h) != a || albedoAtPixel(x + h, y + h) != a)
+        if (albedoAtPixel(x - h, y - h) != a || albedoAtPixel(x + h, y - h) != a || albedoAtPixel(x - h, y + h) != a ||
+            albedoAtPixel(x + h, y + h) != a)
         {
           a = 0.0;
           for (int j = 0; j < 8; ++j)
@@ -195,7 +203,7 @@ public:
   // The light sources: every beam not blocked at the projector that meets
   // the plane (on the print or beyond it), and the glints.
   std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> sources(const ProjectorCalibration& proj,
-                                                                    std::mt19937* rng) const
+                                                                   std::mt19937* rng) const
   {
     std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> out;  // (origin, direction)
     for (int b = 0; b < proj.beamCount(); ++b)
@@ -223,8 +231,10 @@ public:
     const double gain = p_.dot_peak_dn * std::abs(n_.dot(d)) * std::pow(1.5 / sh, 2.0);
     const double half = 6.0 * p_.beam_sigma_rad * sh * cam_.fx / hit.z() + 3.0;  // px
     const double s2 = p_.beam_sigma_rad * p_.beam_sigma_rad;
-    for (int v = std::max(0, static_cast<int>((c.y - half) * S_)); v < std::min(H_ * S_, static_cast<int>((c.y + half) * S_)); ++v)
-      for (int u = std::max(0, static_cast<int>((c.x - half) * S_)); u < std::min(W_ * S_, static_cast<int>((c.x + half) * S_)); ++u)
+    for (int v = std::max(0, static_cast<int>((c.y - half) * S_));
+         v < std::min(H_ * S_, static_cast<int>((c.y + half) * S_)); ++v)
+      for (int u = std::max(0, static_cast<int>((c.x - half) * S_));
+           u < std::min(W_ * S_, static_cast<int>((c.x + half) * S_)); ++u)
       {
         const Eigen::Vector3d ray = rayAt((u + 0.5) / S_ - 0.5, (v + 0.5) / S_ - 0.5);
         const Eigen::Vector3d w = ray * (n_.dot(t_) / n_.dot(ray)) - o;

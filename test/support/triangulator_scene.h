@@ -58,7 +58,8 @@ struct Scene
       }
     }
     // Bisection on g(s) = z(s) - surface(x(s), y(s)), bracketed in depth.
-    const auto g = [&](double s) {
+    const auto g = [&](double s)
+    {
       const Eigen::Vector3d p = o + s * u;
       return p.z() - surfaceZ(p.x(), p.y());
     };
@@ -283,7 +284,8 @@ inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& p
     s.beam = i;
     f.spots.push_back(s);
   }
-  const auto addClutter = [&](const cv::Point2d& px) {
+  const auto addClutter = [&](const cv::Point2d& px)
+  {
     if (!(px.x >= 0 && px.y >= 0 && px.x <= cam.width - 1 && px.y <= cam.height - 1))
       return;
     Spot s;
