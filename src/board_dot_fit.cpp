@@ -1,5 +1,7 @@
 #include "board_dot_fit.h"
 
+#include "calibration_geometry.h"
+
 #include <array>
 #include <cmath>
 
@@ -134,28 +136,24 @@ bool fitDotWindow(const DotWindow& w, double noise, DotVector* th, DotMatrix* co
   {
     const DotMatrix H = J.transpose() * J;
     const DotVector g = J.transpose() * r;
-    bool accepted = false, converged = false;
-    for (int tries = 0; tries < 12 && !accepted; ++tries)
-    {
-      DotMatrix A = H;
-      A.diagonal() *= 1.0 + lambda;
-      A.diagonal().array() += 1e-12;
-      const DotVector step = -A.ldlt().solve(g);
-      const DotVector cand = *th + step;
-      const double c = w.residuals(cand, noise, nullptr).squaredNorm();
-      if (c < cost)
-      {
-        converged = cost - c < 1e-10 * cost || step.segment<2>(kDotX).norm() < 1e-7;
-        *th = cand;
-        cost = c;
-        lambda = std::max(1e-9, lambda * 0.3);
-        accepted = true;
-      }
-      else
-      {
-        lambda *= 8.0;
-      }
-    }
+    DotVector candidate;
+    bool converged = false;
+    const bool accepted = levenbergMarquardtIteration(
+        &cost, &lambda,
+        [&](double l)
+        {
+          DotMatrix A = H;
+          A.diagonal() *= 1.0 + l;
+          A.diagonal().array() += 1e-12;
+          return DotVector(-A.ldlt().solve(g));
+        },
+        [&](const DotVector& step, double* c)
+        {
+          candidate = *th + step;
+          *c = w.residuals(candidate, noise, nullptr).squaredNorm();
+          return true;
+        },
+        [&] { *th = candidate; }, &converged);
     if (!accepted || converged)
       break;
     r = w.residuals(*th, noise, &J);

@@ -6,13 +6,17 @@
 // origin is.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <opencv2/core.hpp>
 
 #include "structured_light_stabilizer/camera_model.h"
+#include "structured_light_stabilizer/projector_calibration.h"
 
 namespace structured_light_stabilizer
 {
@@ -56,6 +60,60 @@ inline bool linePlaneHit(const Eigen::Isometry3d& pose, const Eigen::Vector3d& o
     return false;
   *hit = o + s * d;
   return true;
+}
+
+// The least-squares point closest to all the lines (origin, direction of
+// any length); false when they are (nearly) parallel.
+inline bool closestPointToLines(const std::vector<BeamRay>& lines, Eigen::Vector3d* point)
+{
+  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  for (const BeamRay& r : lines)
+  {
+    const Eigen::Vector3d d = r.direction.normalized();
+    const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - d * d.transpose();
+    A += P;
+    b += P * r.origin;
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(A);
+  if (!(es.eigenvalues()(0) > 1e-9 * std::max(1.0, es.eigenvalues()(2))))
+    return false;
+  *point = A.ldlt().solve(b);
+  return point->allFinite();
+}
+
+inline double distanceToLine(const Eigen::Vector3d& p, const BeamRay& r)
+{
+  const Eigen::Vector3d d = r.direction.normalized();
+  const Eigen::Vector3d w = p - r.origin;
+  return (w - w.dot(d) * d).norm();
+}
+
+// One Levenberg-Marquardt iteration from the normal equations (H, g) of the
+// current state: steps with falling damping are tried (`solveStep(lambda)`
+// returns the step for H with its diagonal scaled by 1 + lambda,
+// `tryStep(step, &cost)` the cost of the stepped state, storing it as the
+// candidate) until one lowers *cost, then `accept()` keeps it. Returns false
+// when none does; *converged when the decrease is negligible.
+template <class SolveStep, class TryStep, class Accept>
+bool levenbergMarquardtIteration(double* cost, double* lambda, SolveStep solveStep, TryStep tryStep, Accept accept,
+                                 bool* converged)
+{
+  for (int tries = 0; tries < 12; ++tries)
+  {
+    const auto step = solveStep(*lambda);
+    double c = 0.0;
+    if (step.allFinite() && tryStep(step, &c) && c < *cost)
+    {
+      *converged = *cost - c < 1e-10 * *cost || step.norm() < 1e-12;
+      *cost = c;
+      *lambda = std::max(1e-12, *lambda * 0.3);
+      accept();
+      return true;
+    }
+    *lambda *= 10.0;
+  }
+  return false;
 }
 
 }  // namespace detail

@@ -160,27 +160,23 @@ bool refineBoardPose(const CameraModel& camera, const BoardParams& params, const
       H += J.transpose() * J;
       g += J.transpose() * r0;
     }
-    bool accepted = false, converged = false;
-    for (int tries = 0; tries < 10 && !accepted; ++tries)
-    {
-      Eigen::Matrix<double, 6, 6> A = H;
-      A.diagonal() *= 1.0 + lambda;
-      const Vector6d step = -A.ldlt().solve(g);
-      const Eigen::Isometry3d candidate = detail::applyPoseIncrement(*pose, step);
-      const double c = cornerCost(camera, params, corners, used, candidate, nullptr);
-      if (c < cost)
-      {
-        converged = cost - c < 1e-10 * cost || step.norm() < 1e-12;
-        *pose = candidate;
-        cost = c;
-        lambda = std::max(1e-9, lambda * 0.3);
-        accepted = true;
-      }
-      else
-      {
-        lambda *= 10.0;
-      }
-    }
+    Eigen::Isometry3d candidate;
+    bool converged = false;
+    const bool accepted = detail::levenbergMarquardtIteration(
+        &cost, &lambda,
+        [&](double l)
+        {
+          Eigen::Matrix<double, 6, 6> A = H;
+          A.diagonal() *= 1.0 + l;
+          return Vector6d(-A.ldlt().solve(g));
+        },
+        [&](const Vector6d& step, double* c)
+        {
+          candidate = detail::applyPoseIncrement(*pose, step);
+          *c = cornerCost(camera, params, corners, used, candidate, nullptr);
+          return true;
+        },
+        [&] { *pose = candidate; }, &converged);
     if (!accepted || converged)
       break;
   }

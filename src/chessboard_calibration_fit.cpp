@@ -49,7 +49,7 @@ std::vector<LabelledPoint> boardPoints(const CameraModel& camera, const Chessboa
 // +inf with fewer than three lines.
 double meetingScore(const std::vector<std::vector<Eigen::Vector3d>>& per_beam)
 {
-  std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> lines;  // (point, unit direction)
+  std::vector<BeamRay> lines;
   double misfit2 = 0.0;
   int misfit_n = 0;
   for (const auto& pts : per_beam)
@@ -63,30 +63,22 @@ double meetingScore(const std::vector<std::vector<Eigen::Vector3d>>& per_beam)
     for (const auto& p : pts)
       S += (p - mean) * (p - mean).transpose();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(S);
-    lines.push_back({mean, es.eigenvectors().col(2)});
+    BeamRay line;
+    line.origin = mean;
+    line.direction = es.eigenvectors().col(2);
+    lines.push_back(line);
     if (pts.size() > 2)
     {
       misfit2 += es.eigenvalues()(0) + es.eigenvalues()(1);
       misfit_n += static_cast<int>(pts.size()) - 2;
     }
   }
-  if (lines.size() < 3)
+  Eigen::Vector3d c;
+  if (lines.size() < 3 || !detail::closestPointToLines(lines, &c))
     return std::numeric_limits<double>::infinity();
-  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  for (const auto& l : lines)
-  {
-    const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - l.second * l.second.transpose();
-    A += P;
-    b += P * l.first;
-  }
-  const Eigen::Vector3d c = A.ldlt().solve(b);
   double d2 = 0.0;
-  for (const auto& l : lines)
-  {
-    const Eigen::Vector3d w = c - l.first;
-    d2 += (w - w.dot(l.second) * l.second).squaredNorm();
-  }
+  for (const BeamRay& l : lines)
+    d2 += detail::square(detail::distanceToLine(c, l));
   return std::sqrt(d2 / lines.size() + (misfit_n > 0 ? misfit2 / misfit_n : 0.0));
 }
 

@@ -151,27 +151,23 @@ bool JointProblem::solve(State* st, const Weights& w) const
   for (int it = 0; it < params_.max_iterations; ++it)
   {
     normalEquations(*st, w, &H, &g);
-    bool accepted = false, converged = false;
-    for (int tries = 0; tries < 12 && !accepted; ++tries)
-    {
-      Eigen::MatrixXd A = H;
-      A.diagonal() = A.diagonal() * (1.0 + lambda) + Eigen::VectorXd::Constant(A.rows(), 1e-12);
-      const Eigen::VectorXd step = -A.ldlt().solve(g);
-      const State cand = st->plus(step);
-      const double cc = cost(cand, w);
-      if (step.allFinite() && cc < c)
-      {
-        converged = c - cc < 1e-9 * c;
-        *st = cand;
-        c = cc;
-        lambda = std::max(1e-12, lambda * 0.3);
-        accepted = true;
-      }
-      else
-      {
-        lambda *= 10.0;
-      }
-    }
+    State candidate;
+    bool converged = false;
+    const bool accepted = levenbergMarquardtIteration(
+        &c, &lambda,
+        [&](double l)
+        {
+          Eigen::MatrixXd A = H;
+          A.diagonal() = A.diagonal() * (1.0 + l) + Eigen::VectorXd::Constant(A.rows(), 1e-12);
+          return Eigen::VectorXd(-A.ldlt().solve(g));
+        },
+        [&](const Eigen::VectorXd& step, double* cc)
+        {
+          candidate = st->plus(step);
+          *cc = cost(candidate, w);
+          return true;
+        },
+        [&] { *st = candidate; }, &converged);
     if (!accepted || converged)
       break;
   }

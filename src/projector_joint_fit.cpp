@@ -19,30 +19,11 @@ using detail::JointProblem;
 using detail::State;
 using detail::Weights;
 
-// Least-squares point closest to all the rays; false when they are parallel.
+using detail::distanceToLine;
+
 bool commonCentreOf(const std::vector<BeamRay>& rays, Eigen::Vector3d* centre)
 {
-  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  for (const BeamRay& r : rays)
-  {
-    const Eigen::Vector3d d = r.direction.normalized();
-    const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - d * d.transpose();
-    A += P;
-    b += P * r.origin;
-  }
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(A);
-  if (!(es.eigenvalues()(0) > 1e-9 * std::max(1.0, es.eigenvalues()(2))))
-    return false;
-  *centre = A.ldlt().solve(b);
-  return centre->allFinite();
-}
-
-double distanceToLine(const Eigen::Vector3d& p, const BeamRay& r)
-{
-  const Eigen::Vector3d d = r.direction.normalized();
-  const Eigen::Vector3d w = p - r.origin;
-  return (w - w.dot(d) * d).norm();
+  return detail::closestPointToLines(rays, centre);
 }
 
 // Starting rays: each dot back-projected onto its board, a line through

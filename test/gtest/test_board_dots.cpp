@@ -85,6 +85,21 @@ void scoreView(const CameraModel& cam, const BoardParams& board, const std::vect
   }
 }
 
+// Worst distance (mm) between the detected and the true board's corners in
+// the camera frame; the board may be numbered from either end (a 10 x 8
+// board is symmetric under a half turn).
+double worstPoseErrorMm(const BoardParams& board, const Eigen::Isometry3d& detected, const Eigen::Isometry3d& truth)
+{
+  double worst = 0.0;
+  for (int k = 0; k < board.cornerCount(); ++k)
+  {
+    const Eigen::Vector3d a = detected * board.corner(k);
+    worst = std::max(worst, 1e3 * std::min((a - truth * board.corner(k)).norm(),
+                                           (a - truth * board.corner(board.cornerCount() - 1 - k)).norm()));
+  }
+  return worst;
+}
+
 }  // namespace
 
 TEST(BoardDots, PoseAndDotCentresOnTiltedBoards)
@@ -105,16 +120,7 @@ TEST(BoardDots, PoseAndDotCentresOnTiltedBoards)
     cv::split(bgr, ch);
     const ChessboardDetection det = detectChessboard(ch[2], cam, sp.board);
     ASSERT_TRUE(det.found) << det.why;
-    // Pose: the board's points within the print, camera frame.
-    double pose_mm = 0.0;
-    for (int k = 0; k < sp.board.cornerCount(); ++k)
-    {
-      const Eigen::Vector3d a = det.pose * sp.board.corner(k);
-      // The board may be numbered from either end (180 deg symmetric).
-      const Eigen::Vector3d b1 = pose * sp.board.corner(k);
-      const Eigen::Vector3d b2 = pose * sp.board.corner(sp.board.cornerCount() - 1 - k);
-      pose_mm = std::max(pose_mm, 1e3 * std::min((a - b1).norm(), (a - b2).norm()));
-    }
+    const double pose_mm = worstPoseErrorMm(sp.board, det.pose, pose);
     worst_pose_mm = std::max(worst_pose_mm, pose_mm);
     worst_corner_rms = std::max(worst_corner_rms, det.corner_rms_px);
     BoardDotReport rep;
@@ -177,13 +183,7 @@ TEST(BoardDots, DistortedLens)
   cv::split(bgr, ch);
   const ChessboardDetection det = detectChessboard(ch[2], cam, sp.board);
   ASSERT_TRUE(det.found) << det.why;
-  double pose_mm = 0.0;
-  for (int k = 0; k < sp.board.cornerCount(); ++k)
-  {
-    const Eigen::Vector3d a = det.pose * sp.board.corner(k);
-    pose_mm = std::max(pose_mm, 1e3 * std::min((a - pose * sp.board.corner(k)).norm(),
-                                               (a - pose * sp.board.corner(sp.board.cornerCount() - 1 - k)).norm()));
-  }
+  const double pose_mm = worstPoseErrorMm(sp.board, det.pose, pose);
   BoardDotReport rep;
   const std::vector<BoardDot> dots = findBoardDots(ch[1], 255.0, cam, sp.board, det, BoardDotParams(), &rep);
   ViewStats st;

@@ -89,6 +89,17 @@ std::vector<Eigen::Isometry3d> sixPoses(const BoardParams& board, int variant)
           sls_test::boardPoseFacing(board, 1.60, -0.10, 0.34, -0.03)};
 }
 
+// The six views of a projector with synthetic noise, seeds seed0 + v.
+std::vector<JointFitView> sixViews(const CameraModel& cam, const ProjectorCalibration& proj, const BoardParams& board,
+                                   int variant, uint32_t seed0)
+{
+  std::vector<JointFitView> views;
+  const auto poses = sixPoses(board, variant);
+  for (size_t v = 0; v < poses.size(); ++v)
+    views.push_back(syntheticView(cam, proj, board, poses[v], SyntheticViewOptions(), seed0 + v));
+  return views;
+}
+
 // RMS and worst distance (m) between fitted and true rays at depth z; with
 // a fit's report, also the RMS of the error over its predicted sigma (per
 // axis: about 1 when the fit knows its own precision).
@@ -152,11 +163,8 @@ TEST(ProjectorJointFit, CentralProjectorFromSixTiltedViews)
   for (int variant : {0, 1})
   {
     const uint32_t seed0 = variant == 0 ? 1 : 101;  // 101+: held out
-    std::vector<JointFitView> views;
     const auto poses = sixPoses(board, variant);
-    for (size_t v = 0; v < poses.size(); ++v)
-      views.push_back(syntheticView(cam, truth, board, poses[v], SyntheticViewOptions(), seed0 + v));
-    const JointFitResult res = fitProjectorJoint(cam, 10, 10, views);
+    const JointFitResult res = fitProjectorJoint(cam, 10, 10, sixViews(cam, truth, board, variant, seed0));
     ASSERT_TRUE(res.ok) << res.error;
     double rms = 0.0, worst = 0.0, pull = 0.0;
     rayErrorAt(res.calibration, truth, 1.5, &rms, &worst, &res, &pull);
@@ -195,10 +203,7 @@ TEST(ProjectorJointFit, BeamsWithoutACommonCentreAreDetected)
   for (BeamRay& r : truth.beams)
     r.origin += Eigen::Vector3d(u(rng), u(rng), 0.0);
   const BoardParams board;
-  std::vector<JointFitView> views;
-  const auto poses = sixPoses(board, 0);
-  for (size_t v = 0; v < poses.size(); ++v)
-    views.push_back(syntheticView(cam, truth, board, poses[v], SyntheticViewOptions(), 21 + v));
+  const std::vector<JointFitView> views = sixViews(cam, truth, board, 0, 21);
   const JointFitResult res = fitProjectorJoint(cam, 10, 10, views);
   ASSERT_TRUE(res.ok) << res.error;
   double rms = 0.0, worst = 0.0;
@@ -294,11 +299,7 @@ TEST(ProjectorJointFit, EveryDistortionModel)
   const BoardParams board;
   for (const CameraModel& cam : cams)
   {
-    std::vector<JointFitView> views;
-    const auto poses = sixPoses(board, 1);
-    for (size_t v = 0; v < poses.size(); ++v)
-      views.push_back(syntheticView(cam, truth, board, poses[v], SyntheticViewOptions(), 201 + v));
-    const JointFitResult res = fitProjectorJoint(cam, 10, 10, views);
+    const JointFitResult res = fitProjectorJoint(cam, 10, 10, sixViews(cam, truth, board, 1, 201));
     ASSERT_TRUE(res.ok) << res.error;
     double rms = 0.0, worst = 0.0;
     rayErrorAt(res.calibration, truth, 1.5, &rms, &worst);

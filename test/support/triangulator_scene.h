@@ -101,6 +101,32 @@ struct FrameOptions
   uint32_t seed = 1;
 };
 
+// A frame of n beams with no hit yet (truth and pixels NaN).
+inline Frame emptyFrame(int n)
+{
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  Frame f;
+  f.truth.assign(n, Eigen::Vector3d::Constant(nan));
+  f.pixels.assign(n, cv::Point2d(nan, nan));
+  return f;
+}
+
+inline bool inImage(const CameraModel& cam, const cv::Point2d& px)
+{
+  return px.x >= 0 && px.y >= 0 && px.x <= cam.width - 1 && px.y <= cam.height - 1;
+}
+
+inline Spot spotAt(const cv::Point2d& px, int beam)
+{
+  Spot s;
+  s.x = px.x;
+  s.y = px.y;
+  s.area = 10.0f;
+  s.intensity = 100.0f;
+  s.beam = beam;
+  return s;
+}
+
 inline Frame makeFrame(const CameraModel& cam, const ProjectorCalibration& proj, const Scene& scene,
                        const FrameOptions& opt)
 {
@@ -251,7 +277,6 @@ inline Eigen::Isometry3d rigPose(const SequenceOptions& o, double t)
 inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& proj, const SequenceOptions& o, int k,
                            const std::vector<Eigen::Vector3d>& rock_points)
 {
-  const double nan = std::numeric_limits<double>::quiet_NaN();
   Scene rock;
   rock.distance = 0.5 * (o.near_m + o.far_m);
   rock.relief = o.relief;
@@ -259,10 +284,8 @@ inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& p
   std::mt19937 rng(o.seed * 100003u + static_cast<uint32_t>(k));
   std::normal_distribution<double> noise(0.0, o.noise_px);
   std::uniform_real_distribution<double> uni(0.0, 1.0);
-  Frame f;
   const int n = proj.beamCount();
-  f.truth.assign(n, Eigen::Vector3d::Constant(nan));
-  f.pixels.assign(n, cv::Point2d(nan, nan));
+  Frame f = emptyFrame(n);
   for (int i = 0; i < n; ++i)
   {
     Eigen::Vector3d hit;
@@ -270,31 +293,17 @@ inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& p
       continue;
     const Eigen::Vector3d p = inv * hit;
     const cv::Point2d px = cam.project(p);
-    if (!(px.x >= 0 && px.y >= 0 && px.x <= cam.width - 1 && px.y <= cam.height - 1))
+    if (!inImage(cam, px))
       continue;
     f.truth[i] = p;
     f.pixels[i] = px;
-    if (uni(rng) < o.drop_fraction)
-      continue;
-    Spot s;
-    s.x = px.x + noise(rng);
-    s.y = px.y + noise(rng);
-    s.area = 10.0f;
-    s.intensity = 100.0f;
-    s.beam = i;
-    f.spots.push_back(s);
+    if (uni(rng) >= o.drop_fraction)
+      f.spots.push_back(spotAt(cv::Point2d(px.x + noise(rng), px.y + noise(rng)), i));
   }
   const auto addClutter = [&](const cv::Point2d& px)
   {
-    if (!(px.x >= 0 && px.y >= 0 && px.x <= cam.width - 1 && px.y <= cam.height - 1))
-      return;
-    Spot s;
-    s.x = px.x;
-    s.y = px.y;
-    s.area = 10.0f;
-    s.intensity = 100.0f;
-    s.beam = -1;
-    f.spots.push_back(s);
+    if (inImage(cam, px))
+      f.spots.push_back(spotAt(px, -1));
   };
   for (const Eigen::Vector3d& w : rock_points)
     addClutter(cam.project(inv * w));
