@@ -3,7 +3,9 @@
 simulator's ground truth, and ends the demo after ~duration seconds.
 
 Line printed each second:
-  dots found / visible, depth error of `points` vs sim/ground_truth/points
+  dots found / visible (a true dot counts as found when a detected spot lies
+  within 3 px of it, one to one: spurious spots and merged dots do not make
+  up for missed ones), depth error of `points` vs sim/ground_truth/points
   (RMS, by beam, same frame), pose error of `pose_delta` vs the true motion
   since the reference frame, share of valid pose deltas, and two latencies to
   pose_delta arrival: from image acquisition (the header stamp, which for the
@@ -39,10 +41,12 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
-from structured_light_stabilizer.evaluation import cloud_xyz, is_identity, pose_error, transform_matrix
+from structured_light_stabilizer.evaluation import (cloud_xyz, is_identity, match_spots, pose_error,
+                                                    transform_matrix)
 from structured_light_stabilizer.msg import CentroidArray, PoseDelta
 
 HISTORY = 300  # frames kept while waiting for their partner stamp
+MATCH_PX = 3.0  # a detected spot within this distance of a true dot finds it (one to one)
 IN_FLIGHT_S = 1.0  # a frame without pose_delta this long after its publication is dropped
 
 
@@ -159,13 +163,15 @@ class Monitor:
             self.poses.truth(stamp, transform_matrix(msg.transform))
 
     def on_gt_spots(self, msg):
+        xy = [(c.x, c.y) for c in msg.centroids]
         with self.lock:
-            self.spots.truth(msg.header.stamp, len(msg.centroids))
+            self.spots.truth(msg.header.stamp, xy)
 
     # --- callbacks: pipeline outputs --------------------------------------
     def on_spots(self, msg):
+        xy = [(c.x, c.y) for c in msg.centroids]
         with self.lock:
-            self.spots.output(msg.header.stamp, len(msg.centroids))
+            self.spots.output(msg.header.stamp, xy)
 
     def on_points(self, msg):
         xyz = cloud_xyz(msg)
@@ -194,8 +200,8 @@ class Monitor:
     # --- pairs (called under the lock) -------------------------------------
     def pair_spots(self, _stamp, found, visible):
         self._add("frames")
-        self._add("dots_found", min(found, visible))
-        self._add("dots_visible", visible)
+        self._add("dots_found", match_spots(found, visible, MATCH_PX))
+        self._add("dots_visible", len(visible))
 
     def pair_points(self, _stamp, est, gt):
         if gt.shape != est.shape:

@@ -57,7 +57,7 @@ public:
     markContested();
   }
 
-  EpipolarAssignment run(const std::vector<Eigen::Vector2d>* previous_px);
+  EpipolarAssignment run(const std::vector<Eigen::Vector2d>* previous_px, const std::vector<uint8_t>* remembered);
 
 private:
   void markContested();
@@ -89,11 +89,13 @@ void EpipolarAssigner::markContested()
   }
 }
 
-EpipolarAssignment EpipolarAssigner::run(const std::vector<Eigen::Vector2d>* previous_px)
+EpipolarAssignment EpipolarAssigner::run(const std::vector<Eigen::Vector2d>* previous_px,
+                                         const std::vector<uint8_t>* remembered)
 {
   EpipolarAssignment out;
   if (previous_px)
-    out.tracked = applyTrackingPrior(geometry_, params_, spots_px_, *previous_px, &graph_, &a_);
+    out.tracked =
+        applyTrackingPrior(geometry_, params_, spots_px_, *previous_px, &graph_, &a_, &out.track_px, remembered);
   const int max_passes = 4 + 2 * (geometry_.rows() + geometry_.cols());
   // The surface prior interpolates between accepted neighbours on opposite
   // sides: extrapolating from one side favours whatever reading puts the
@@ -316,9 +318,10 @@ CandidateGraph gateCandidates(const BeamGeometry& geometry, const std::vector<Ei
 
 EpipolarAssignment assignEpipolar(const BeamGeometry& geometry, const TriangulatorParams& params,
                                   const std::vector<Eigen::Vector2d>& spots_px,
-                                  const std::vector<Eigen::Vector2d>* previous_px)
+                                  const std::vector<Eigen::Vector2d>* previous_px,
+                                  const std::vector<uint8_t>* remembered)
 {
-  return EpipolarAssigner(geometry, params, spots_px).run(previous_px);
+  return EpipolarAssigner(geometry, params, spots_px).run(previous_px, remembered);
 }
 
 }  // namespace detail

@@ -3,6 +3,7 @@
 // points in the camera optical frame (metres), beams row-major.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
@@ -61,20 +62,32 @@ struct Assignment
 // The whole identification (epipolar_assigner.cpp): Triangulator::assignEpipolar.
 EpipolarAssignment assignEpipolar(const BeamGeometry& geometry, const TriangulatorParams& params,
                                   const std::vector<Eigen::Vector2d>& spots_px,
-                                  const std::vector<Eigen::Vector2d>* previous_px);
+                                  const std::vector<Eigen::Vector2d>* previous_px,
+                                  const std::vector<uint8_t>* remembered = nullptr);
 
 // Stage 1 (epipolar_assigner.cpp): every spot within `gate_px` of a
 // segment. NaN spots have no candidates.
 CandidateGraph gateCandidates(const BeamGeometry& geometry, const std::vector<Eigen::Vector2d>& spots_px,
                               double gate_px);
 
+// The radius around a tracked dot's prediction: tracking_sigmas times the
+// measured spread of this frame's tracked dots about the common motion,
+// within [min_tracking_radius_px, tracking_radius_px]; tracking_radius_px
+// when the spread is unknown (NaN) or tracking_sigmas is 0.
+double trackingRadius(const TriangulatorParams& params, double spread_px);
+
 // Stage 2 (tracking_prior.cpp): settles the beams whose dot is where last
 // frame's dot (`previous_px`, per beam, NaN = none) moved to and removes the
 // candidates of primed beams that lie far from it. Returns how many beams it
 // settled, or -1 when the prior is not usable (nothing changed then).
+// *track_px (when given): where each primed beam's dot is predicted in this
+// frame (undistorted px; NaN for the others), filled when the prior is usable.
+// `remembered` (optional, per beam): the previous position is itself a
+// prediction (the dot was missing last frame; BeamTracker's memory).
 int applyTrackingPrior(const BeamGeometry& geometry, const TriangulatorParams& params,
                        const std::vector<Eigen::Vector2d>& spots_px, const std::vector<Eigen::Vector2d>& previous_px,
-                       CandidateGraph* graph, Assignment* assignment);
+                       CandidateGraph* graph, Assignment* assignment, std::vector<Eigen::Vector2d>* track_px = nullptr,
+                       const std::vector<uint8_t>* remembered = nullptr);
 
 // Stage 3b (line_reader.cpp): joint reading of the grid lines whose beams
 // share an epipolar line. `lines` are candidate-graph components on one grid

@@ -7,6 +7,7 @@
 #include <Eigen/Dense>
 #include <yaml-cpp/yaml.h>
 
+#include "calibration_geometry.h"
 #include "structured_light_stabilizer/triangulator.h"
 
 namespace structured_light_stabilizer
@@ -135,30 +136,12 @@ bool collectBoardPoints(const CameraModel& camera, const std::vector<BoardView>&
   return true;
 }
 
-// Least-squares point closest to all the lines.
 bool commonCentre(const std::vector<BeamRay>& beams, Eigen::Vector3d* centre)
 {
-  Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  for (const BeamRay& r : beams)
-  {
-    const Eigen::Matrix3d P = Eigen::Matrix3d::Identity() - r.direction * r.direction.transpose();
-    A += P;
-    b += P * r.origin;
-  }
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(A);
-  // All beams (nearly) parallel: no centre.
-  if (!(es.eigenvalues()(0) > 1e-9 * std::max(1.0, es.eigenvalues()(2))))
-    return false;
-  *centre = A.ldlt().solve(b);
-  return centre->allFinite();
+  return detail::closestPointToLines(beams, centre);
 }
 
-double distanceToLine(const Eigen::Vector3d& p, const BeamRay& r)
-{
-  const Eigen::Vector3d d = p - r.origin;
-  return (d - d.dot(r.direction) * r.direction).norm();
-}
+using detail::distanceToLine;
 
 // RMS reprojection residual (pixels) of a fitted beam over its board views.
 double reprojectionResidual(const CameraModel& camera, const std::vector<BoardView>& views,

@@ -168,6 +168,14 @@ TriangulationResult Triangulator::process(const Spots& spots, const Triangulatio
   res.ambiguous = assigned.ambiguous;
   res.tracked = assigned.tracked;
   triangulateAssigned(spots, undistorted, assigned.beam_of_spot, &res);
+  res.predicted.assign(n_beams, Eigen::Vector3d::Constant(detail::kNaN));
+  for (int i = 0; i < static_cast<int>(assigned.track_px.size()); ++i)
+  {
+    Eigen::Vector3d p;
+    if (!res.points[i].allFinite() && assigned.track_px[i].allFinite() &&
+        geometry_.triangulatePixel(i, assigned.track_px[i], &p))
+      res.predicted[i] = p;
+  }
   return res;
 }
 
@@ -201,14 +209,19 @@ EpipolarAssignment Triangulator::assignWithPrior(const std::vector<Eigen::Vector
   if (!previous || static_cast<int>(previous->points.size()) != n_beams)
     return single;
   std::vector<Eigen::Vector2d> previous_px(n_beams, Eigen::Vector2d::Constant(detail::kNaN));
+  std::vector<uint8_t> remembered(n_beams, 0);
   for (int i = 0; i < n_beams; ++i)
+  {
     if (previous->points[i].allFinite() && previous->points[i].z() > 0.0)
       previous_px[i] = geometry_.projectUndistorted(previous->points[i]);
-  const EpipolarAssignment tracked = assignEpipolar(undistorted, &previous_px);
+    remembered[i] = i < static_cast<int>(previous->predicted.size()) && previous->predicted[i].allFinite();
+  }
+  const EpipolarAssignment tracked = detail::assignEpipolar(geometry_, params_, undistorted, &previous_px, &remembered);
   if (tracked.tracked < 0 || !reconcile(tracked.beam_of_spot, previous_px, &single.beam_of_spot))
     return single;
   single.ambiguous = tracked.ambiguous;
   single.tracked = tracked.tracked;
+  single.track_px = tracked.track_px;
   return single;
 }
 

@@ -3,17 +3,62 @@
 // simulator's 10 x 10 projector: 10 % of the dots missing, 20 spurious
 // spots, 0.04 px noise; rolled (5 deg) and axis-aligned grids, and the
 // study's sort for comparison; the epipolar method also with a tracking
-// prior (the frame's own single-frame result). Usage: benchmark_triangulator [frames]
+// prior (the frame's own single-frame result); then sequences through
+// BeamTracker (test_triangulator_sequence's scene: 1 -> 2 m, jitter, 10 %
+// missing, 20 spurious spots per frame) with their wrong beams. Usage:
+// benchmark_triangulator [frames]
 #include <chrono>
 #include <algorithm>
 #include <cstdlib>
 #include <vector>
 #include <iostream>
+#include <memory>
 
 #include "support/triangulator_scene.h"
+#include "structured_light_stabilizer/beam_tracker.h"
 #include "structured_light_stabilizer/triangulator.h"
 
 using namespace structured_light_stabilizer;
+
+namespace
+{
+
+// A moving rig through BeamTracker: ms per frame and identification.
+void benchmarkSequences(int frames)
+{
+  const CameraModel cam = CameraModel::studyDesign();
+  for (double roll : {0.087, 0.0})
+  {
+    const ProjectorCalibration proj = sls_test::simLikeProjector(roll);
+    sls_test::SequenceOptions o;
+    o.seed = 9;
+    const auto rock = sls_test::rockClutterPoints(cam, o, o.rock_clutter);
+    std::vector<sls_test::Frame> input;
+    for (int k = 0; k < frames; ++k)
+      input.push_back(sls_test::sequenceFrame(cam, proj, o, k, rock));
+    const auto tri = std::make_shared<const Triangulator>(cam, proj);
+    BeamTracker tracker;
+    std::vector<TriangulationResult> results;
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int k = 0; k < frames; ++k)
+      results.push_back(tracker.process(tri, input[k].spots, k / 15.0));
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    long visible = 0, right = 0, wrong = 0;
+    for (int k = 0; k < frames; ++k)
+      for (size_t j = 0; j < input[k].spots.size(); ++j)
+      {
+        const int truth = input[k].spots[j].beam, got = results[k].beam_of_spot[j];
+        visible += truth >= 0;
+        right += got >= 0 && got == truth;
+        wrong += got >= 0 && got != truth;
+      }
+    std::cout << "roll " << roll * 180.0 / M_PI << " deg, sequence with BeamTracker: " << ms / frames << " ms/frame, "
+              << right << "/" << visible << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong
+              << " wrong (look-alikes included)\n";
+  }
+}
+
+}  // namespace
 
 int main(int argc, char** argv)
 {
@@ -81,5 +126,6 @@ int main(int argc, char** argv)
                 << " dots right (" << 100.0 * right / std::max(1L, visible) << " %), " << wrong << " wrong\n";
     }
   }
+  benchmarkSequences(frames);
   return 0;
 }

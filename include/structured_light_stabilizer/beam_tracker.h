@@ -13,7 +13,11 @@
 //    going backwards, e.g. a bag looping, means the dots may have moved
 //    anywhere).
 // The Triangulator itself falls back to the single-frame solution when too
-// few beams persisted. Not thread-safe: one tracker per stream, guarded by
+// few beams persisted. A beam whose dot is missing keeps, for up to
+// memory_frames frames, the position the prior predicted for it
+// (TriangulationResult::predicted) as its prior: a spurious spot on its
+// segment is still refused while the dot is away (with only the last frame,
+// a dot missing twice in a row lost that protection). Not thread-safe: one tracker per stream, guarded by
 // the caller when several threads feed it.
 #pragma once
 
@@ -29,6 +33,7 @@ struct BeamTrackerParams
 {
   bool use_tracking = true;
   double reset_gap_s = 0.5;  // seconds: forget the previous frame when the stamps are farther apart
+  int memory_frames = 3;     // frames a missing dot's predicted position stays its prior (0 = last frame only)
 };
 
 class BeamTracker
@@ -56,9 +61,14 @@ public:
   void reset();
 
 private:
+  // Gives the beams missing from the last result their predicted point
+  // while their age allows.
+  void remember(bool had_prior);
+
   BeamTrackerParams params_;
   std::shared_ptr<const Triangulator> owner_;  // made the previous result; null = none kept
-  TriangulationResult previous_;
+  TriangulationResult previous_;               // the last result, with the remembered predictions as points
+  std::vector<int> age_;  // per beam: frames since its dot was seen (remembered while <= memory_frames)
   double previous_stamp_s_ = 0.0;
 };
 

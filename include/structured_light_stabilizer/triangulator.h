@@ -77,6 +77,14 @@ struct TriangulatorParams
   // where its dot was last frame (plus the common shift) is accepted first;
   // a beam that had a dot last frame is not given a spot farther than this.
   double tracking_radius_px = 1.5;
+  // The radius used is tracking_sigmas times the spread of this frame's
+  // tracked dots about the pattern's common motion (measured every frame;
+  // 5 sigma: a dot leaves it once in 270 000 times), never below
+  // min_tracking_radius_px nor above tracking_radius_px: a spurious spot
+  // next to where a vanished dot would be is taken (1.5 / radius)^2 times
+  // less often than with the fixed radius. 0 = the fixed radius.
+  double tracking_sigmas = 5.0;
+  double min_tracking_radius_px = 0.6;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;
@@ -97,6 +105,11 @@ struct TriangulationResult
   int unassigned_spots = 0;             // spots that are spurious, ambiguous or outside every gate
   int tracked = -1;                     // beams settled by the tracking prior; -1 = no usable prior
   double mean_ray_gap = 0.0;            // metres, over the valid points (0 when none)
+  // Per beam without a point this frame but with a tracking prior: the
+  // point of the beam where the prior predicted its dot (NaN otherwise).
+  // BeamTracker carries it to the next frame as the beam's prior, so a dot
+  // missing for a few frames keeps its protection against spurious spots.
+  std::vector<Eigen::Vector3d> predicted;
 };
 
 // Outcome of the epipolar identification alone (no triangulation).
@@ -105,6 +118,7 @@ struct EpipolarAssignment
   std::vector<int> beam_of_spot;  // per spot, beam; -1 = none
   int ambiguous = 0;              // pairs left unassigned because an alternative of nearly equal cost exists
   int tracked = -1;               // beams settled by the tracking prior; -1 = the prior was not usable (or none)
+  std::vector<Eigen::Vector2d> track_px;  // per beam, the prior's prediction (undistorted px); empty or NaN = none
 };
 
 // Closest approach of the camera ray (through the camera centre along

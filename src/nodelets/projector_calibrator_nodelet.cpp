@@ -1,19 +1,28 @@
-// ProjectorCalibrator nodelet (calibrate.launch): collects the spots of a
-// flat board at user-signalled distances and fits the projector's beam rays
-// with the core calibrateFromBoards (projector_calibrator.h).
-//
-// The operator puts the board at the next distance of ~distances and calls
-// ~capture (std_srvs/Trigger); the next ~frames_per_view frames holding the
-// whole pattern are averaged per beam. After the last distance the rays are
-// fitted, the per-beam report is logged and published (latched) on ~report,
-// and the YAML is written to ~output.
+// ProjectorCalibrator nodelet (calibrate.launch; docs/calibration.md), two
+// modes, each calling the core:
+//  - chessboard (~board "COLSxROWS" and ~square set): each ~capture
+//    (std_srvs/Trigger) analyses the latest camera/image_raw with its
+//    camera/camera_info (chessboard_calibration.h); the response says what
+//    the view gave (board, dots) or why it is refused; after ~views usable
+//    views every view is fitted at once, the report logged and latched on
+//    ~report, the YAML written to ~output and the PNG report next to it.
+//  - distances (the study's procedure, ~distances): the operator puts a
+//    board facing the camera at the next distance and calls ~capture; the
+//    next ~frames_per_view frames of `spots` holding the whole pattern are
+//    averaged per beam; after the last distance calibrateFromBoards
+//    (projector_calibrator.h).
 #include <array>
 #include <cmath>
 #include <map>
+#include <memory>
 #include <mutex>
+#include <sstream>
 #include <string>
 #include <vector>
 
+#include <cv_bridge/cv_bridge.h>
+#include <image_transport/image_transport.h>
+#include <opencv2/imgcodecs.hpp>
 #include <pluginlib/class_list_macros.hpp>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
@@ -21,6 +30,7 @@
 #include <std_srvs/Trigger.h>
 
 #include "structured_light_stabilizer/CentroidArray.h"
+#include "structured_light_stabilizer/chessboard_calibration.h"
 #include "structured_light_stabilizer/projector_calibrator.h"
 #include "structured_light_stabilizer/triangulator.h"
 #include "conversions.h"
@@ -36,6 +46,15 @@ public:
 
 private:
   void onInit() override
+  {
+    ros::NodeHandle& pnh = getPrivateNodeHandle();
+    if (pnh.hasParam("board"))
+      initChessboard();
+    else
+      initDistances();
+  }
+
+  void initDistances()
   {
     ros::NodeHandle& nh = getNodeHandle();
     ros::NodeHandle& pnh = getPrivateNodeHandle();
@@ -69,6 +88,161 @@ private:
     NODELET_INFO("ProjectorCalibrator: place the board at %.3f m and call %s", distances_[0],
                  srv_capture_.getService().c_str());
   }
+
+  // ---- Chessboard mode.
+
+  void initChessboard()
+  {
+    ros::NodeHandle& nh = getNodeHandle();
+    ros::NodeHandle& pnh = getPrivateNodeHandle();
+    const std::string board = pnh.param<std::string>("board", "");
+    const std::string colour = pnh.param<std::string>("projector_color", "green");
+    const std::string model = pnh.param<std::string>("model", "auto");
+    ChessboardCalibrationParams& p = board_params_;
+    p.board.square_m = pnh.param("square", 0.0);
+    p.board.margin_m = pnh.param("margin", 0.0);
+    p.rows = pnh.param("rows", 10);
+    p.cols = pnh.param("cols", 10);
+    pnh.param("views", views_wanted_, 6);
+    pnh.param<std::string>("output", output_, "");
+    pnh.param<std::string>("views_dir", views_dir_, "");
+    std::string why;
+    if (!parseBoardSize(board, &p.board.cols, &p.board.rows))
+      why = "~board must be COLSxROWS inner corners (e.g. 10x8), got '" + board + "'";
+    else if (!channelsForProjectorColor(colour, &p.dot_channel, &p.board_channel))
+      why = "unknown ~projector_color '" + colour + "'";
+    else if (model != "auto" && model != "central" && model != "per-beam")
+      why = "~model must be auto, central or per-beam";
+    else if (output_.empty() || views_wanted_ < 2)
+      why = "~output (YAML path) and ~views >= 2 are needed";
+    else
+      why = p.validate();
+    p.fit.model = model == "central" ? ProjectorModel::kCentral
+                                     : (model == "per-beam" ? ProjectorModel::kPerBeam : ProjectorModel::kChosenByData);
+    if (!why.empty())
+    {
+      NODELET_ERROR("ProjectorCalibrator: %s; not calibrating", why.c_str());
+      return;
+    }
+    pub_report_ = pnh.advertise<std_msgs::String>("report", 1, true);
+    srv_capture_ = pnh.advertiseService("capture", &ProjectorCalibratorNodelet::captureBoardCb, this);
+    it_.reset(new image_transport::ImageTransport(nh));
+    sub_image_ = it_->subscribe("camera/image_raw", 1, &ProjectorCalibratorNodelet::imageCb, this,
+                                image_transport::TransportHints("raw", ros::TransportHints(), pnh));
+    sub_info_ = nh.subscribe("camera/camera_info", 1, &ProjectorCalibratorNodelet::infoCb, this);
+    NODELET_INFO(
+        "ProjectorCalibrator: chessboard %s of %.4f m squares; show it to the camera at 1.2-1.6 m, tilted "
+        "up to 20 deg, with every dot on the print in at least two views, and call %s for each of %d views",
+        board.c_str(), p.board.square_m, srv_capture_.getService().c_str(), views_wanted_);
+  }
+
+  void imageCb(const sensor_msgs::ImageConstPtr& msg)
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    image_ = msg;
+  }
+
+  // The latest image as the core wants it: mono8/mono16 as they are, any
+  // colour or Bayer encoding as bgr8; false with the reason.
+  static bool toCore(const sensor_msgs::ImageConstPtr& msg, cv::Mat* out, std::string* why)
+  {
+    try
+    {
+      const std::string& e = msg->encoding;
+      if (e == "mono8" || e == "mono16" || e == "8UC1" || e == "16UC1")
+        *out = cv_bridge::toCvShare(msg)->image.clone();
+      else
+        *out = cv_bridge::toCvCopy(msg, "bgr8")->image;
+      return true;
+    }
+    catch (const std::exception& ex)
+    {
+      *why = "cannot convert the image (" + msg->encoding + "): " + ex.what();
+      return false;
+    }
+  }
+
+  bool captureBoardCb(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res)
+  {
+    std::lock_guard<std::mutex> serial(capture_mutex_);  // one capture at a time
+    sensor_msgs::ImageConstPtr image;
+    sensor_msgs::CameraInfoConstPtr info;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      image = image_;
+      info = info_;
+    }
+    res.success = false;
+    CameraModel camera;
+    cv::Mat mat;
+    std::string why;
+    if (board_views_.size() >= static_cast<size_t>(views_wanted_) && done_)
+      res.message = "all views are captured; restart to calibrate again";
+    else if (!image || !info)
+      res.message = "no image and camera_info received yet on camera/image_raw, camera/camera_info";
+    else if (last_stamp_ == image->header.stamp)
+      res.message = "no new image since the last capture";
+    else if (!cameraModelFromInfo(*info, &camera, &why))
+      res.message = "unusable camera_info: " + why;
+    else if (!toCore(image, &mat, &why))
+      res.message = why;
+    if (!res.message.empty())
+      return true;
+    last_stamp_ = image->header.stamp;
+    guarded([&] { addBoardView(camera, mat, &res); });
+    return true;
+  }
+
+  void addBoardView(const CameraModel& camera, const cv::Mat& image, std_srvs::Trigger::Response* res)
+  {
+    const std::string name = "capture " + std::to_string(captures_++);
+    if (!views_dir_.empty())
+      cv::imwrite(views_dir_ + "/view_" + std::to_string(captures_ - 1) + ".png", image);
+    ChessboardView view = analyseChessboardView(image, name, camera, board_params_);
+    std::ostringstream msg;
+    if (!view.usable)
+    {
+      msg << name << " refused: " << view.why;
+      res->message = msg.str();
+      NODELET_WARN("ProjectorCalibrator: %s", res->message.c_str());
+      return;
+    }
+    msg << name << ": board found, " << view.grid.count << " of " << board_params_.rows * board_params_.cols
+        << " dots on the print" << (view.offset_known ? "" : " (not the whole pattern: numbered from the others)");
+    board_views_.push_back(std::move(view));
+    msg << "; " << board_views_.size() << " of " << views_wanted_ << " views";
+    res->success = true;
+    res->message = msg.str();
+    NODELET_INFO("ProjectorCalibrator: %s", res->message.c_str());
+    if (board_views_.size() >= static_cast<size_t>(views_wanted_))
+      finishBoards(camera);
+  }
+
+  void finishBoards(const CameraModel& camera)
+  {
+    const ChessboardCalibrationResult cal = calibrateFromChessboardViews(camera, board_views_, board_params_);
+    std_msgs::StringPtr report(new std_msgs::String);
+    report->data = cal.report();
+    std::string err;
+    const std::string png = output_.substr(0, output_.rfind('.')) + ".png";
+    if (!cv::imwrite(png, drawCalibrationReport(cal, board_params_.board)))
+      report->data += "cannot write the PNG report " + png + "\n";
+    if (cal.ok && !saveProjectorCalibration(output_, cal.fit.calibration, &err))
+      report->data += "writing failed: " + err + "\n";
+    else if (cal.ok)
+      report->data += "written to " + output_ + " and " + png + "\n";
+    done_ = cal.ok;
+    if (!cal.ok)
+    {
+      // Keep the usable views: the operator may add more.
+      views_wanted_ = static_cast<int>(board_views_.size()) + 1;
+      report->data += "capture another view to try again\n";
+    }
+    NODELET_INFO("ProjectorCalibrator:\n%s", report->data.c_str());
+    pub_report_.publish(report);
+  }
+
+  // ---- Distances mode.
 
   bool captureCb(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res)
   {
@@ -202,6 +376,19 @@ private:
     NODELET_INFO("ProjectorCalibrator: %s", report->data.c_str());
     pub_report_.publish(report);
   }
+
+  // Chessboard mode: captureBoardCb runs the analysis under capture_mutex_
+  // (captures one at a time), outside mutex_ (the image callback's).
+  std::mutex capture_mutex_;
+  ChessboardCalibrationParams board_params_;
+  int views_wanted_ = 6;
+  int captures_ = 0;
+  bool done_ = false;
+  std::vector<ChessboardView> board_views_;
+  ros::Time last_stamp_;
+  sensor_msgs::ImageConstPtr image_;  // latest, under mutex_
+  std::unique_ptr<image_transport::ImageTransport> it_;
+  image_transport::Subscriber sub_image_;
 
   BoardCalibrationParams params_;
   int frames_per_view_ = 5;

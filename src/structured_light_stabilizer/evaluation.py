@@ -52,3 +52,24 @@ def pose_error(estimate, truth):
     """Translation (m) and rotation (deg) of estimate * truth^-1, both 4 x 4."""
     e = estimate @ np.linalg.inv(truth)
     return float(np.linalg.norm(e[:3, 3])), rotation_angle_deg(e[:3, :3])
+
+
+def match_spots(found, truth, radius=3.0):
+    """Number of true spots matched one to one by found spots within `radius`
+    pixels: pairs are taken by increasing distance, each spot at most once
+    (dots lie ~30 px apart, so this greedy matching is the optimal one).
+    found, truth: sequences of (x, y). A found spot matches nothing it is
+    not near, so spurious spots and merged dots do not count as recall."""
+    f = np.asarray(found, dtype=np.float64).reshape(-1, 2)
+    t = np.asarray(truth, dtype=np.float64).reshape(-1, 2)
+    if len(f) == 0 or len(t) == 0:
+        return 0
+    d = np.linalg.norm(f[:, None, :] - t[None, :, :], axis=2)
+    pairs = np.argwhere(d <= radius)
+    order = np.argsort(d[pairs[:, 0], pairs[:, 1]], kind="stable")
+    used_f, used_t = set(), set()
+    for i, j in pairs[order]:
+        if i not in used_f and j not in used_t:
+            used_f.add(i)
+            used_t.add(j)
+    return len(used_t)

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/projector_calibration.h"
@@ -57,7 +58,8 @@ struct Scene
       }
     }
     // Bisection on g(s) = z(s) - surface(x(s), y(s)), bracketed in depth.
-    const auto g = [&](double s) {
+    const auto g = [&](double s)
+    {
       const Eigen::Vector3d p = o + s * u;
       return p.z() - surfaceZ(p.x(), p.y());
     };
@@ -98,6 +100,32 @@ struct FrameOptions
   int merge_pairs = 0;  // neighbouring visible dots (same row) merged into one blob
   uint32_t seed = 1;
 };
+
+// A frame of n beams with no hit yet (truth and pixels NaN).
+inline Frame emptyFrame(int n)
+{
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  Frame f;
+  f.truth.assign(n, Eigen::Vector3d::Constant(nan));
+  f.pixels.assign(n, cv::Point2d(nan, nan));
+  return f;
+}
+
+inline bool inImage(const CameraModel& cam, const cv::Point2d& px)
+{
+  return px.x >= 0 && px.y >= 0 && px.x <= cam.width - 1 && px.y <= cam.height - 1;
+}
+
+inline Spot spotAt(const cv::Point2d& px, int beam)
+{
+  Spot s;
+  s.x = px.x;
+  s.y = px.y;
+  s.area = 10.0f;
+  s.intensity = 100.0f;
+  s.beam = beam;
+  return s;
+}
 
 inline Frame makeFrame(const CameraModel& cam, const ProjectorCalibration& proj, const Scene& scene,
                        const FrameOptions& opt)
@@ -203,6 +231,106 @@ inline ProjectorCalibration simLikeProjector(double roll_rad, int rows = 10, int
                                              const Eigen::Vector3d& origin = Eigen::Vector3d(0.25, 0.0, 0.0))
 {
   return makeGridProjector(rows, cols, origin, Eigen::Vector3d(0.0, 0.0, 1.5) - origin, 0.035, 0.035, roll_rad);
+}
+
+}  // namespace sls_test
+
+namespace sls_test
+{
+
+// A rig moving over a fixed rock, frame after frame: the rock is the height
+// field of `Scene` in a world frame (its camera frame at rest); the rig (the
+// camera with its projector) sits at `rigPose(t)` in that frame: a slow
+// approach and retreat between near_m and far_m over `period_s`, plus wind
+// jitter of `jitter_m` / `jitter_rad` per axis (sums of sines, 0.7 Hz base).
+struct SequenceOptions
+{
+  double near_m = 1.0, far_m = 2.0, period_s = 120.0;
+  double jitter_m = 0.01, jitter_rad = 0.0175;
+  double relief = 0.15;
+  double drop_fraction = 0.1;  // dots missing at random in every frame
+  int random_clutter = 10;     // projector-coloured spots anywhere, new every frame
+  int rock_clutter = 10;       // projector-coloured spots fixed on the rock
+  double noise_px = 0.04;
+  uint32_t seed = 1;
+};
+
+inline Eigen::Isometry3d rigPose(const SequenceOptions& o, double t)
+{
+  const double mid = 0.5 * (o.near_m + o.far_m), amp = 0.5 * (o.far_m - o.near_m);
+  // The rock's mean plane lies at mid: the rig moves along z so that the
+  // distance goes mid + amp cos(...) (1.0 m .. 2.0 m).
+  const double dz = mid - (mid + amp * std::cos(2.0 * M_PI * t / o.period_s));
+  const auto s = [&](double f, double ph) { return std::sin(2.0 * M_PI * 0.7 * f * t + ph); };
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  pose.translation() = Eigen::Vector3d(o.jitter_m * (0.6 * s(1.0, 0.1) + 0.4 * s(2.3, 1.7)),
+                                       o.jitter_m * (0.6 * s(1.3, 2.2) + 0.4 * s(2.9, 0.4)),
+                                       dz + o.jitter_m * (0.6 * s(0.9, 1.1) + 0.4 * s(3.1, 2.9)));
+  pose.linear() = (Eigen::AngleAxisd(o.jitter_rad * (0.6 * s(1.1, 0.7) + 0.4 * s(2.7, 1.3)), Eigen::Vector3d::UnitX()) *
+                   Eigen::AngleAxisd(o.jitter_rad * (0.6 * s(0.8, 2.6) + 0.4 * s(2.1, 0.2)), Eigen::Vector3d::UnitY()) *
+                   Eigen::AngleAxisd(o.jitter_rad * (0.6 * s(1.4, 1.9) + 0.4 * s(3.3, 2.4)), Eigen::Vector3d::UnitZ()))
+                      .toRotationMatrix();
+  return pose;
+}
+
+// Frame k at t = k / 15 s. Spots as makeFrame (beam = true beam, -1 clutter).
+inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& proj, const SequenceOptions& o, int k,
+                           const std::vector<Eigen::Vector3d>& rock_points)
+{
+  Scene rock;
+  rock.distance = 0.5 * (o.near_m + o.far_m);
+  rock.relief = o.relief;
+  const Eigen::Isometry3d pose = rigPose(o, k / 15.0), inv = pose.inverse();
+  std::mt19937 rng(o.seed * 100003u + static_cast<uint32_t>(k));
+  std::normal_distribution<double> noise(0.0, o.noise_px);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  const int n = proj.beamCount();
+  Frame f = emptyFrame(n);
+  for (int i = 0; i < n; ++i)
+  {
+    Eigen::Vector3d hit;
+    if (!rock.intersect(pose * proj.beams[i].origin, pose.linear() * proj.beams[i].direction, &hit))
+      continue;
+    const Eigen::Vector3d p = inv * hit;
+    const cv::Point2d px = cam.project(p);
+    if (!inImage(cam, px))
+      continue;
+    f.truth[i] = p;
+    f.pixels[i] = px;
+    if (uni(rng) >= o.drop_fraction)
+      f.spots.push_back(spotAt(cv::Point2d(px.x + noise(rng), px.y + noise(rng)), i));
+  }
+  const auto addClutter = [&](const cv::Point2d& px)
+  {
+    if (inImage(cam, px))
+      f.spots.push_back(spotAt(px, -1));
+  };
+  for (const Eigen::Vector3d& w : rock_points)
+    addClutter(cam.project(inv * w));
+  for (int c = 0; c < o.random_clutter; ++c)
+    addClutter(cv::Point2d(uni(rng) * (cam.width - 1), uni(rng) * (cam.height - 1)));
+  std::shuffle(f.spots.begin(), f.spots.end(), rng);
+  return f;
+}
+
+// Points on the rock for fixed clutter: where camera rays through random
+// pixels of the frame at rest meet the rock.
+inline std::vector<Eigen::Vector3d> rockClutterPoints(const CameraModel& cam, const SequenceOptions& o, int count)
+{
+  Scene rock;
+  rock.distance = 0.5 * (o.near_m + o.far_m);
+  rock.relief = o.relief;
+  std::mt19937 rng(o.seed * 7919u);
+  std::uniform_real_distribution<double> uni(0.1, 0.9);
+  std::vector<Eigen::Vector3d> out;
+  while (static_cast<int>(out.size()) < count)
+  {
+    const Eigen::Vector2d n = cam.normalize(cv::Point2d(uni(rng) * cam.width, uni(rng) * cam.height));
+    Eigen::Vector3d hit;
+    if (rock.intersect(Eigen::Vector3d::Zero(), Eigen::Vector3d(n.x(), n.y(), 1.0).normalized(), &hit))
+      out.push_back(hit);
+  }
+  return out;
 }
 
 }  // namespace sls_test
