@@ -243,6 +243,9 @@ void RigParams::validate() const
   if (!std::isfinite(e.wavelength_m) || e.wavelength_m < 350e-9 || e.wavelength_m > 1100e-9)
     refuse("emitter.wavelength", "must be in [350, 1100] nm, got " + num(e.wavelength_m * 1e9) + " nm");
   requirePositive(e.spectral_fwhm_m, "emitter.spectral_fwhm");
+  if (e.spectral_fwhm_m > 0.2 * e.wavelength_m)
+    refuse("emitter.spectral_fwhm",
+           "must be at most a fifth of the wavelength, got " + num(e.spectral_fwhm_m * 1e9) + " nm");
   requirePositive(e.cw_optical_power_w, "emitter.cw_optical_power_w");
   requireFraction(e.wall_plug_efficiency, "emitter.wall_plug_efficiency");
   if (!std::isfinite(e.peak_power_factor) || e.peak_power_factor < 1.0 || e.peak_power_factor > 100.0)
