@@ -13,11 +13,13 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 
 using structured_light_stabilizer::SimFrame;
 using structured_light_stabilizer::Simulator;
 using structured_light_stabilizer::SimulatorParams;
+using structured_light_stabilizer::studySimulatorParams;
 
 int main(int argc, char** argv)
 {
@@ -28,23 +30,23 @@ int main(int argc, char** argv)
   struct Case
   {
     std::string name;
-    SimulatorParams config;
+    SimulatorParams config = studySimulatorParams();
   };
   std::vector<Case> cases;
   {
-    Case c{"default", SimulatorParams()};
+    Case c{"default", studySimulatorParams()};
     c.config.motion.jitter_translation_m = 0.003;
     c.config.motion.jitter_rotation_rad = 0.002;
     cases.push_back(c);
   }
   {
-    Case c{"night_flat", SimulatorParams()};
+    Case c{"night_flat", studySimulatorParams()};
     c.config.lighting.sun_level = 0.0;
     c.config.rock.relief_m = 0.0;
     cases.push_back(c);
   }
   {
-    Case c{"bright_relief50_distorted_clutter", SimulatorParams()};
+    Case c{"bright_relief50_distorted_clutter", studySimulatorParams()};
     c.config.lighting.sun_level = 1.0;
     c.config.rock.relief_m = 0.5;
     c.config.sensor.camera.distortion = structured_light_stabilizer::DistortionModel::kPlumbBob;

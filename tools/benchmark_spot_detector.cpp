@@ -26,6 +26,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
 
@@ -150,7 +151,7 @@ std::vector<cv::Mat> benchmarkFrames(int count)
   const double suns[] = {1.0, 0.5};
   for (int i = 0; i < count; ++i)
   {
-    SimulatorParams cfg;
+    SimulatorParams cfg = studySimulatorParams();  // comparable with the figures measured before
     cfg.projector.beam_sigma_rad = beams[i % 4];
     cfg.lighting.sun_level = suns[(i / 4) % 2];
     cfg.lighting.dot_to_sun_ratio *= std::pow(cfg.projector.beam_sigma_rad / 0.002, 2.0);

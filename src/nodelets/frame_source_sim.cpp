@@ -32,8 +32,8 @@ namespace structured_light_stabilizer
 namespace
 {
 
-// ~radiometry's default: the study's brightness as stated.
-constexpr const char* kDefaultRadiometry = "study";
+// ~radiometry's default: the physics of the recommended daylight rig (or ~rig's).
+constexpr const char* kDefaultRadiometry = "corrected";
 
 bool radiometryModel(const std::string& name, RadiometryModel* model)
 {

@@ -393,6 +393,13 @@ const SimRadiometry& recommendedSimRadiometry()
   return r;
 }
 
+SimulatorParams studySimulatorParams()
+{
+  SimulatorParams p;
+  applySimRadiometry(studySimRadiometry(), &p);
+  return p;
+}
+
 void applySimRadiometry(const SimRadiometry& r, SimulatorParams* p)
 {
   p->lighting.exposure = r.exposure;

@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "structured_light_stabilizer/sim/scene_analysis.h"
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "support/sim_measure.h"
 
@@ -373,7 +374,7 @@ TEST(Simulator, StepOccludesAndShadowsDots)
 
 TEST(Simulator, BrightDotsSaturateToAYellowWhiteCoreOnBrightRock)
 {
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sls::studySimulatorParams();  // the study's brightness
   c.lighting.sun_level = 1.0;
   c.projector.power_scale = 4.0;
   c.rock.albedo_min = 0.40;
@@ -435,7 +436,7 @@ TEST(Simulator, DotToSunRatioInTheImageIsTheSceneAnalysis)
   };
   for (const Case& k : cases)
   {
-    sls::SimulatorParams c;
+    sls::SimulatorParams c = sls::studySimulatorParams();  // the study's brightness
     c.lighting.sun_level = k.sun_level;
     c.lighting.dot_to_sun_ratio = sls::LightingParams::sceneDotToSunRatio(k.model);
     c.lighting.sun_direction = Eigen::Vector3d(std::sin(incidence), 0.0, -std::cos(incidence));
@@ -519,7 +520,7 @@ TEST(Simulator, OliveMineralsDoNotLookLikeDots)
   // seed, no noise); compared in OpenCV's HSV hue (0-180).
   for (double sun : {0.3, 1.0})
   {
-    sls::SimulatorParams c;
+    sls::SimulatorParams c = sls::studySimulatorParams();  // the study's brightness
     c.lighting.sun_level = sun;
     c.sensor.read_noise_dn = 0.0;
     c.sensor.shot_noise = false;

@@ -29,6 +29,7 @@
 
 #include <gtest/gtest.h>
 
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
 #include "support/spot_score.h"
@@ -63,7 +64,7 @@ struct Condition
 SimulatorParams config(double beam_sigma_rad, const Condition& c, bool keep_snr, uint32_t seed)
 {
   seed += 3000;  // held out (see the file's header)
-  SimulatorParams cfg;
+  SimulatorParams cfg = studySimulatorParams();  // the study's SNR cases are on its brightness
   cfg.projector.beam_sigma_rad = beam_sigma_rad;
   cfg.lighting.sun_level = c.sun;
   cfg.rock.albedo_min = c.albedo_min;
@@ -184,7 +185,7 @@ double dotSnr(const SimFrame& f, const SensorParams& sc, size_t b)
 // (SNR 32); the dot/sun ratio, which decides detection, is the study's.
 double worstCaseSnr(const Simulator& sim)
 {
-  const SimulatorParams defaults;
+  const SimulatorParams defaults = studySimulatorParams();
   const SensorParams& sc = sim.params().sensor;
   const double beam_px = LightingParams::kReferenceBeamSigmaRad * sc.camera.fx;
   const double defocus_px = sim.diameterOfConfusion(LightingParams::kReferenceDistanceM) / 4.0 / sc.pixel_size_m;

@@ -213,6 +213,9 @@ SimRadiometry studySimRadiometry();
 // The recommended rig (RigParams::recommendedDaylight()) lighting every
 // frame (not strobed), on the study's scene; computed once.
 const SimRadiometry& recommendedSimRadiometry();
+// The simulator's default params with studySimRadiometry(): for the tests
+// and benchmarks about the study's brightness.
+SimulatorParams studySimulatorParams();
 // Sets those fields of the simulator's params.
 void applySimRadiometry(const SimRadiometry& radiometry, SimulatorParams* params);
 

@@ -14,6 +14,7 @@
 
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/projector_color.h"
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/scene_analysis.h"
 
 namespace structured_light_stabilizer
@@ -107,7 +108,7 @@ struct ProjectorParams
   // Gaussian divergence of each beam (1-sigma, rad): a dot's sigma on the rock
   // grows with its distance from the projector, so its image size stays about
   // 2 px at any depth (3 mm at 1.5 m -> 2.0 px with fx = 1011.7 px).
-  double beam_sigma_rad = 0.002;
+  double beam_sigma_rad = recommendedSimRadiometry().beam_sigma_rad;  // the recommended rig's (1.5 mrad)
   double power_scale = 1.0;  // relative dot brightness (1 = the study's LED design)
 };
 
@@ -144,11 +145,13 @@ struct SensorParams
   double focal_length_m = 12.14e-3;
   double focus_distance_m = 1.0;
   double aperture_diameter_m = 1.9e-3;
-  double read_noise_dn = 1.0;  // std dev in 8-bit counts (0 = off)
+  // Gain and read noise of the recommended rig's camera (radiometry.h; the
+  // historical camera of studySimRadiometry(): 0.01 DN/e-, 1 DN).
+  double read_noise_dn = recommendedSimRadiometry().read_noise_dn;  // std dev in 8-bit counts (0 = off)
   bool shot_noise = true;
   // Conversion gain, DN per photo-electron: shot noise variance = signal_dn * gain.
   // 0.01 = 100 e-/DN, a 25.5 ke- full well over the 8-bit range.
-  double gain_dn_per_electron = 0.01;
+  double gain_dn_per_electron = recommendedSimRadiometry().gain_dn_per_electron;
   // Natural vignetting: image irradiance falls as cos^4 of the off-axis angle
   // (the study's eq. 2.9 factor; 0.45 in the corners of this 53 deg lens).
   bool natural_vignetting = true;
@@ -187,8 +190,10 @@ struct LightingParams
   // Ratio of a dot's peak radiance (green channel) to the radiance of the
   // same surface facing the sun at sun_level = 1, both at normal incidence.
   // Default: the study as stated (above).
-  double dot_to_sun_ratio = sceneDotToSunRatio(RadiometryModel::kStudyAsStated);
-  double exposure = 1.0;  // global scale applied before quantisation
+  // Default: the recommended daylight rig's corrected physics (radiometry.h,
+  // docs/daylight.md); studySimRadiometry() is the study as stated.
+  double dot_to_sun_ratio = recommendedSimRadiometry().dot_to_sun_ratio;
+  double exposure = recommendedSimRadiometry().exposure;  // global scale applied before quantisation
 
   // Scene lighting, baked into the rock's shading when the simulator is built
   // (updateLive() keeps the built ones). Direction towards the sun in the
