@@ -162,7 +162,8 @@ inline double baseValue(const PlaneWindow& w, int i, const Decomposition& d)
 {
   if (w.ambient)
     return double(w.signal[i]) - w.ambient_signal[i];
-  return double(w.signal[i]) - d.kappa * w.reference[i];
+  // Without a colour model the reference plane is not filled (0 x garbage can be NaN).
+  return d.kappa > 0.0 ? double(w.signal[i]) - d.kappa * w.reference[i] : double(w.signal[i]);
 }
 
 // The ambient light in the signal channel at pixel i, given the added light P.
@@ -249,7 +250,8 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
   const double mean_ambient = n ? ambient_sum / n : 0.0, floor = std::max(rs.albedo_floor_dn, win->noise);
   win->normalised = rs.normalise_albedo && d.ambient_known && mean_ambient >= 2.0 * floor;
   // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
-  const float* other = pw.ambient ? pw.ambient_signal : pw.reference;
+  // (A mono window fills no reference plane: with kappa = 0 it subtracts 0 x signal, never 0 x garbage.)
+  const float* other = pw.ambient ? pw.ambient_signal : (d.kappa > 0.0 ? pw.reference : pw.signal);
   const float c = pw.ambient ? 1.0f : static_cast<float>(d.kappa), gain = static_cast<float>(d.gain);
   const float inv_mean = static_cast<float>(1.0 / (mean_ambient + floor)), fl = static_cast<float>(floor);
   const float lo = static_cast<float>(1.0 / kAlphaMax), hi = static_cast<float>(kAlphaMax);

@@ -29,7 +29,7 @@ const std::string kCamera = std::string(SLS_TEST_DATA_DIR) + "/camera_study.yaml
 // the pattern's top rows fall beyond it.
 cv::Mat boardImage(double distance, double tilt_x, double tilt_y, double offset_y, uint32_t seed)
 {
-  SimulatorParams c;
+  SimulatorParams c = studySimulatorParams();  // the board views of the tests below
   c.target.kind = TargetKind::kChessboard;
   c.target.chessboard.distance_m = distance;
   c.target.chessboard.tilt_x_rad = tilt_x;
@@ -41,7 +41,7 @@ cv::Mat boardImage(double distance, double tilt_x, double tilt_y, double offset_
 
 cv::Mat rockImage(uint32_t seed)
 {
-  SimulatorParams c;
+  SimulatorParams c = studySimulatorParams();
   c.noise_seed = seed;
   return Simulator(c).render(0.0).image;
 }

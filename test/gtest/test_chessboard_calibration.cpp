@@ -39,7 +39,7 @@ const BoardPose kViews[] = {{1.20, 0.30, 0.10, 0.05, 0.02, 0.0},   {1.30, -0.25,
 
 SimulatorParams boardScene(const BoardPose& p, uint32_t seed)
 {
-  SimulatorParams c;
+  SimulatorParams c = studySimulatorParams();  // the views were measured at the study's brightness
   c.target.kind = TargetKind::kChessboard;
   ChessboardParams& b = c.target.chessboard;
   b.distance_m = p.distance;

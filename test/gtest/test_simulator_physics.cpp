@@ -143,7 +143,7 @@ namespace
 
 sls::SimulatorParams chessboardScene()
 {
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sls::studySimulatorParams();
   c.target.kind = sls::TargetKind::kChessboard;
   sls::ChessboardParams& b = c.target.chessboard;
   b.cols = 12;

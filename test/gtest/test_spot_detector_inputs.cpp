@@ -51,7 +51,7 @@ Score simulatorKind(const Kind& k, int frames, uint32_t seed, double* worst)
   *worst = 1.0;
   for (int f = 0; f < frames; ++f)
   {
-    SimulatorParams cfg;
+    SimulatorParams cfg = studySimulatorParams();  // the input kinds at the study's brightness
     EXPECT_TRUE(sensorOutputFromEncoding(k.encoding, &cfg.sensor.output));
     cfg.projector.color = k.color;
     cfg.projector.wavelength_nm = nominalWavelengthNm(k.color);

@@ -314,7 +314,7 @@ std::vector<cv::Point2d> visiblePixels(const SimFrame& f, int* clipped)
 // sun and dots (the study's brightness: bright rock clips the dots).
 SimulatorParams rigAt(double distance_m, uint32_t seed)
 {
-  SimulatorParams cfg;
+  SimulatorParams cfg = studySimulatorParams();
   cfg.rock.distance_m = distance_m;
   cfg.rock.seed = seed;
   cfg.noise_seed = seed * 7 + 1;

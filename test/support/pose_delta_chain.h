@@ -52,7 +52,7 @@ struct ChainScene
 // The rig jitter of the issue: +-10 mm, +-1 deg per axis.
 inline SimulatorParams chainBase(uint32_t seed)
 {
-  SimulatorParams c;
+  SimulatorParams c = studySimulatorParams();  // the issue's scenes were measured at the study's brightness
   c.rock.seed = seed;
   c.noise_seed = 1000 + 17 * seed;
   c.motion.jitter_translation_m = 0.010;

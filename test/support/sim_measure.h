@@ -7,6 +7,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 
 namespace sim_measure
@@ -97,7 +98,7 @@ inline cv::Point2d subRayCentroid(const sls::Simulator& sim, int k, double t, in
 
 inline sls::SimulatorParams nightNoNoise()
 {
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sls::studySimulatorParams();  // the study's brightness: the clipping cases
   c.lighting.sun_level = 0.0;  // no rock background under the dots
   c.sensor.read_noise_dn = 0.0;
   c.sensor.shot_noise = false;
@@ -108,7 +109,7 @@ inline sls::SimulatorParams nightNoNoise()
 // Sunlit at sun_level, noise-free, keeping the linear radiance.
 inline sls::SimulatorParams sunlitNoNoise(double sun_level)
 {
-  sls::SimulatorParams c;
+  sls::SimulatorParams c = sls::studySimulatorParams();
   c.lighting.sun_level = sun_level;
   c.sensor.read_noise_dn = 0.0;
   c.sensor.shot_noise = false;
