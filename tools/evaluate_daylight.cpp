@@ -38,7 +38,6 @@ namespace
 {
 
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
-constexpr double kCameraRate = 30.0;
 
 struct Options
 {
@@ -52,8 +51,14 @@ struct Options
   double texture_period = 0.02;
   double motion = 1.0;  // scale of the jitter (2 mm, 1 mrad at 0.7 Hz)
   std::vector<double> sweep;
-  bool normalise = false;  // strobed: divide the difference by the ambient (the albedo under the dot)
+  bool normalise = false;  // --difference: divide the difference by the ambient (the albedo under the dot)
+  bool difference = false;  // strobed: the difference image into the detector (the emulation before the
+                            // SpotDetector had its strobed mode); default: detect(on, ambient) as the nodelet
   double albedo = -1.0;    // > 0: a uniform rock of this albedo (no texture at all)
+  double camera_rate = 30.0;  // Hz, every frame (strobed: on and off alternate)
+  bool extrapolate = false;   // strobed: the ambient from the two frames before (a nodelet that does not wait)
+  bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
+  int detect_threshold = -1, min_peak = -1;  // >= 0: the SpotDetector's fast.detect_threshold / fast.min_peak
 };
 
 struct Stats
@@ -176,14 +181,19 @@ int wrongBeams(const Spots& spots, const TriangulationResult& tri, const SimFram
 Stats runCase(const Options& o, double distance, uint32_t seed)
 {
   const Simulator sim(sceneFor(o, distance, seed));
-  SpotDetector detector;
+  SpotDetectorParams dp;
+  if (o.detect_threshold >= 0)
+    dp.fast.detect_threshold = o.detect_threshold;
+  if (o.min_peak >= 0)
+    dp.fast.min_peak = o.min_peak;
+  SpotDetector detector(dp);
   const Triangulator tri(sim.camera(), sim.projector());
   PoseDeltaEstimator pose((PoseDeltaParams()));
   pose.setCamera(sim.camera());
   Stats st;
   FrameRequest off;
   off.projector_on = false;
-  const double period = 1.0 / kCameraRate;
+  const double period = 1.0 / o.camera_rate;
   Eigen::Isometry3d ref = Eigen::Isometry3d::Identity();
   for (int k = 0; k < o.frames; ++k)
   {
@@ -193,12 +203,16 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
     cv::Mat image = f.image, texture = f.image;
     if (o.strobe)
     {
-      const AmbientEstimate amb = compensateAmbient(t, {sim.render(t - period, off).image, t - period},
-                                                    {sim.render(t + period, off).image, t + period});
-      image = difference(f.image, amb.image, o.normalise);
-      texture = amb.image;
+      const double t2 = o.extrapolate ? t - 3.0 * period : t + period;
+      const AmbientEstimate amb =
+          compensateAmbient(t, {sim.render(t - period, off).image, t - period}, {sim.render(t2, off).image, t2});
+      texture = o.true_ambient ? sim.render(t, off).image : amb.image;
+      if (o.difference)
+        image = difference(f.image, amb.image, o.normalise);
     }
-    const SpotDetectionResult det = detector.detect(image, PixelFormat::kBgr8);
+    const SpotDetectionResult det = o.strobe && !o.difference
+                                        ? detector.detect(image, texture, PixelFormat::kBgr8)
+                                        : detector.detect(image, PixelFormat::kBgr8);
     std::vector<cv::Point2d> truth;
     for (size_t b = 0; b < f.pixels.size(); ++b)
       if (f.visible[b])
@@ -295,6 +309,18 @@ int main(int argc, char** argv)
       o.albedo = std::atof(v.c_str());
     else if (k == "--normalise")
       o.normalise = v != "0";
+    else if (k == "--detect-threshold")
+      o.detect_threshold = std::atoi(v.c_str());
+    else if (k == "--min-peak")
+      o.min_peak = std::atoi(v.c_str());
+    else if (k == "--camera-rate")
+      o.camera_rate = std::atof(v.c_str());
+    else if (k == "--extrapolate")
+      o.extrapolate = v != "0";
+    else if (k == "--true-ambient")
+      o.true_ambient = v != "0";
+    else if (k == "--difference")
+      o.difference = v != "0";
     else if (k == "--sweep")
       o.sweep = numbers(v);
     else

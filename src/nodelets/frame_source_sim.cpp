@@ -388,6 +388,10 @@ std::string SimSource::applyRadiometry(const SimRadiometry& r, SimulatorParams* 
     c->sensor.gain_dn_per_electron = explicit_values.sensor.gain_dn_per_electron;
   if (ctx_.pnh.hasParam("beam_sigma"))
     c->projector.beam_sigma_rad = explicit_values.projector.beam_sigma_rad;
+  // The rig's emitter is green (520 nm); another ~projector_color keeps its own wavelength (a red or NIR
+  // projector at 520 nm is refused by the simulator's validation).
+  if (ctx_.pnh.hasParam("projector_color") || ctx_.pnh.hasParam("projector_wavelength"))
+    c->projector.wavelength_nm = explicit_values.projector.wavelength_nm;
   return rig_note_;
 }
 
