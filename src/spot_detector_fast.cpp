@@ -45,7 +45,7 @@ public:
 
 private:
   void findCandidates(const FastParams& p, SpotDetectorDebug* debug);
-  std::vector<KeptSpot> refineCandidates(const FastParams& p, SpotDetectorDebug* debug);
+  std::vector<KeptSpot> refineCandidates(const FastParams& p, SpotDetectorDebug* debug, size_t max_candidates);
 
   // Scratch reused across frames (no per-frame allocation in the hot path).
   FramePlanes planes_;
@@ -239,6 +239,13 @@ void addSpotDebug(const Spots& spots, const std::vector<SpotFit>& fits, SpotDete
 // ---------------------------------------------------------------------------
 // The pipeline.
 
+// The most candidates a frame of dots can have (FastParams::max_candidates).
+size_t candidateBudget(const SpotDetectorParams& params)
+{
+  const size_t beams = static_cast<size_t>(params.projector_rows) * static_cast<size_t>(params.projector_cols);
+  return std::max(static_cast<size_t>(params.fast.max_candidates), 10 * beams);
+}
+
 SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                                        const SpotDetectorParams& params, SpotDetectorDebug* debug,
                                        SpotDetectorTimings* timings)
@@ -250,7 +257,18 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   findCandidates(p, debug);
   tm.threshold_ms = threshold_ms_;
   tm.labelling_ms = timer.lap() - threshold_ms_;
-  const std::vector<KeptSpot> kept = refineCandidates(p, debug);
+  const size_t budget = candidateBudget(params);
+  if (candidates_.size() > budget)
+  {
+    SpotDetectionResult refused;
+    refused.error = std::to_string(candidates_.size()) + " candidate spots for " + std::to_string(budget) +
+                    " at most (fast.max_candidates, or 10 x the projector's beams): not a dot image (noise, a "
+                    "flash, or detection thresholds far too low)";
+    if (timings)
+      *timings = tm;
+    return refused;
+  }
+  const std::vector<KeptSpot> kept = refineCandidates(p, debug, 2 * budget);
   const std::vector<char> drop = markDuplicates(kept);
   std::vector<SpotFit> fits;
   Spots spots = survivors(kept, drop, &fits);
@@ -297,7 +315,8 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
 
 // Stage 4 and the acceptance tests, candidate by candidate; blobs holding
 // several dots append their further seeds to candidates_ on the way.
-std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug)
+std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug,
+                                                   size_t max_candidates)
 {
   const bool split = true;
   if (split)
@@ -321,7 +340,8 @@ std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDete
       const int min_peak = planes_.peakThreshold(p.min_peak);
       if (fits ? splitter_.nextSeed(c, r.x, r.y, r.sigma, min_peak, p.max_sigma_px, &seed)
                : splitter_.nextSeed(c, px, py, 1.5, min_peak, p.max_sigma_px, &seed))
-        candidates_.push_back(seed);
+        if (candidates_.size() < max_candidates)  // the seeds of split blobs count too
+          candidates_.push_back(seed);
       if (again)
         continue;
     }

@@ -178,14 +178,22 @@ bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_le
   }
   else
   {
+    // A mono frame is read in place, through a local header: scratch_ must
+    // never alias the caller's image (a later bgr8 frame's extractChannel
+    // would write into it, after the message holding it has been freed: the
+    // heap corruption that killed the manager in hostile_inputs.test).
+    cv::Mat plane;
     if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
+    {
       cv::extractChannel(image(roi_), scratch_, channel);
+      plane = scratch_;
+    }
     else if (image.type() == CV_8UC1)
-      scratch_ = image(roi_);
+      plane = image(roi_);
     else
       return false;
     (*float_levels)[0].release();
-    pyrDownToFloat(scratch_, &(*float_levels)[1]);
+    pyrDownToFloat(plane, &(*float_levels)[1]);
   }
   for (size_t l = 2; l < float_levels->size(); ++l)
     cv::pyrDown((*float_levels)[l - 1], (*float_levels)[l]);

@@ -8,6 +8,7 @@
 #include <atomic>
 #include <cmath>
 #include <memory>
+#include <deque>
 #include <mutex>
 #include <string>
 #include <vector>
@@ -187,7 +188,11 @@ class SpotDetectorNodelet : public NodeletBase
 {
 public:
   SpotDetectorNodelet() : NodeletBase("SpotDetector") {}
-  ~SpotDetectorNodelet() override { stopCallbacks(); }
+  ~SpotDetectorNodelet() override
+  {
+    release_timer_.stop();
+    stopCallbacks();
+  }
 
 private:
   void onInit() override
@@ -210,6 +215,10 @@ private:
       NODELET_WARN("SpotDetector: ~ambient_max_gap_s must be > 0 (got %g); using 0.25", ambient_max_gap_s_);
       ambient_max_gap_s_ = 0.25;
     }
+    pnh.param("ambient_wait", ambient_wait_, true);
+    if (strobe_ && ambient_wait_)
+      release_timer_ = nh.createWallTimer(ros::WallDuration(0.5 * ambient_max_gap_s_),
+                                          [this](const ros::WallTimerEvent&) { releaseStale(); });
     it_.reset(new image_transport::ImageTransport(nh));
 
     setUpDiagnostics("structured_light_stabilizer/SpotDetector");
@@ -224,9 +233,9 @@ private:
     pub_debug_ = advertiseImage(*it_, "spots/debug_image", 1);
     if (strobe_)
       NODELET_INFO(
-          "SpotDetector: strobe mode: each frame of camera/image_raw is paired with the nearest "
-          "projector-off frame of camera/image_ambient within %.3f s",
-          ambient_max_gap_s_);
+          "SpotDetector: strobe mode: each frame of camera/image_raw is paired with the projector-off frames "
+          "of camera/image_ambient around it (within %.3f s)%s",
+          ambient_max_gap_s_, ambient_wait_ ? ", waiting for the one after it" : "");
     startSubscriptions(std::string("camera/image_raw") + (strobe_ ? " and camera/image_ambient are" : " is") +
                        " subscribed on demand (~lazy = true): only while spots or spots/debug_image has a subscriber");
   }
@@ -239,6 +248,7 @@ private:
     {
       sub_ambient_.subscribe(*it_, "camera/image_ambient", 4, hints);
       ambient_cache_.reset(new message_filters::Cache<sensor_msgs::Image>(sub_ambient_, 4));
+      ambient_cache_->registerCallback(&SpotDetectorNodelet::ambientCb, this);
     }
   }
 
@@ -249,6 +259,8 @@ private:
     {
       sub_ambient_.unsubscribe();
       ambient_cache_.reset();
+      std::lock_guard<std::mutex> lock(pending_mutex_);
+      pending_.clear();
     }
   }
 
@@ -283,7 +295,80 @@ private:
 
   void imageCb(const sensor_msgs::ImageConstPtr& msg)
   {
-    guarded([&] { process(msg); });
+    if (!strobe_ || !ambient_wait_)
+    {
+      processGuarded(msg);
+      return;
+    }
+    // Strobe mode: a frame whose following projector-off frame has not come
+    // yet waits for it (interpolation beats extrapolation from the two
+    // before); one waiting already is not held past this frame.
+    const bool after = ambientAfter(msg->header.stamp);  // takes connect_mutex_: not under pending_mutex_
+    std::vector<sensor_msgs::ImageConstPtr> ready;
+    {
+      std::lock_guard<std::mutex> lock(pending_mutex_);
+      for (const Pending& p : pending_)
+        ready.push_back(p.msg);
+      pending_.clear();
+      if (after)
+        ready.push_back(msg);
+      else
+        pending_.push_back({msg, ros::WallTime::now()});
+    }
+    for (const sensor_msgs::ImageConstPtr& m : ready)
+      processGuarded(m);
+  }
+
+  // A projector-off frame came (already in the cache): the frames waiting
+  // for one after them go.
+  void ambientCb(const sensor_msgs::ImageConstPtr& amb)
+  {
+    std::vector<sensor_msgs::ImageConstPtr> ready;
+    {
+      std::lock_guard<std::mutex> lock(pending_mutex_);
+      while (!pending_.empty() && pending_.front().msg->header.stamp <= amb->header.stamp)
+      {
+        ready.push_back(pending_.front().msg);
+        pending_.pop_front();
+      }
+    }
+    for (const sensor_msgs::ImageConstPtr& m : ready)
+      processGuarded(m);
+  }
+
+  // Frames that waited longer than ~ambient_max_gap_s (wall clock) go with
+  // the frames before them (the projector-off stream stopped).
+  void releaseStale()
+  {
+    std::vector<sensor_msgs::ImageConstPtr> ready;
+    {
+      const ros::WallTime limit = ros::WallTime::now() - ros::WallDuration(ambient_max_gap_s_);
+      std::lock_guard<std::mutex> lock(pending_mutex_);
+      while (!pending_.empty() && pending_.front().arrived < limit)
+      {
+        ready.push_back(pending_.front().msg);
+        pending_.pop_front();
+      }
+    }
+    for (const sensor_msgs::ImageConstPtr& m : ready)
+      processGuarded(m);
+  }
+
+  bool ambientAfter(const ros::Time& stamp)
+  {
+    std::lock_guard<std::mutex> lock(connect_mutex_);
+    return ambient_cache_ && ambient_cache_->getElemAfterTime(stamp);
+  }
+
+  // Frames now come from three callbacks: one at a time through the detector.
+  void processGuarded(const sensor_msgs::ImageConstPtr& msg)
+  {
+    guarded(
+        [&]
+        {
+          std::lock_guard<std::mutex> lock(process_mutex_);
+          process(msg);
+        });
   }
 
   // The cached projector-off frames around `stamp` usable for it: the
@@ -471,6 +556,7 @@ private:
   int projector_rows_ = 10, projector_cols_ = 10;
   bool strobe_ = false;
   double ambient_max_gap_s_ = 0.25;
+  bool ambient_wait_ = true;  // strobe mode: a frame waits for the projector-off frame after it
 
   // dynamic_reconfigure: the server holds config_mutex_ while calling
   // configCb(); the frame callback copies params_ under it.
@@ -480,7 +566,8 @@ private:
   bool enabled_ = true;
   bool params_changed_ = true;
 
-  // Only the frame callback touches the detector and these buffers (one image queue).
+  // Only process() touches the detector and these buffers, under process_mutex_.
+  std::mutex process_mutex_;
   SpotDetector detector_;
   bool mono_warned_ = false;
   cv::Mat swapped_, ambient_swapped_, ambient_swapped_b_;
@@ -491,6 +578,15 @@ private:
   // Strobe mode: the projector-off frames, cached by stamp (under connect_mutex_).
   image_transport::SubscriberFilter sub_ambient_;
   std::unique_ptr<message_filters::Cache<sensor_msgs::Image>> ambient_cache_;
+  // Strobe mode with ~ambient_wait: frames waiting for their following projector-off frame.
+  struct Pending
+  {
+    sensor_msgs::ImageConstPtr msg;
+    ros::WallTime arrived;
+  };
+  std::mutex pending_mutex_;
+  std::deque<Pending> pending_;
+  ros::WallTimer release_timer_;
   ros::Publisher pub_spots_;
   image_transport::Publisher pub_debug_;
 

@@ -30,6 +30,7 @@ import rosnode
 import rospy
 import rostest
 from nodelet.srv import NodeletList
+from diagnostic_msgs.msg import DiagnosticArray
 from rosgraph_msgs.msg import Log
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
@@ -99,6 +100,8 @@ class HostileInputs(unittest.TestCase):
         cls.image_pub = rospy.Publisher("camera/image_raw", Image, queue_size=400)
         cls.info_pub = rospy.Publisher("camera/camera_info", CameraInfo, queue_size=400)
         rospy.Subscriber("/rosout", Log, cls.on_log, queue_size=1000)
+        cls.diagnostics = {}  # status name -> latest "message; key=value ..." (printed when a check fails)
+        rospy.Subscriber("/diagnostics", DiagnosticArray, cls.on_diagnostics, queue_size=50)
         rospy.Subscriber("spots", CentroidArray, cls.on_out("spots"), queue_size=400)
         rospy.Subscriber("points", PointCloud2, cls.on_out("points"), queue_size=400)
         rospy.Subscriber("pose_delta", PoseDelta, cls.on_out("pose_delta"), queue_size=400)
@@ -147,6 +150,13 @@ class HostileInputs(unittest.TestCase):
                 cls.watch_calls += 1
             except Exception as e:  # a dead process or an unanswered service
                 cls.manager_failures.append("%.1f: %s" % (time.time(), e))
+
+    @classmethod
+    def on_diagnostics(cls, msg):
+        with cls.lock:
+            for st in msg.status:
+                cls.diagnostics[st.name] = "%s; %s" % (st.message, ", ".join("%s=%s" % (kv.key, kv.value)
+                                                                             for kv in st.values))
 
     @classmethod
     def on_log(cls, msg):
@@ -285,6 +295,21 @@ class HostileInputs(unittest.TestCase):
               "depth RMS %.4f %%; pose_delta %d (%d valid), error RMS %.2f mm %.4f deg"
               % (label, len(stamps), found, visible, centroid_rms, clouds, beams_est, beams_true, depth_rms,
                  len(poses), len(valid), t_rms, r_rms))
+        with self.lock:
+            for name, text in sorted(self.diagnostics.items()):
+                print("[ MEASURE ] %s: diagnostics %s: %s" % (label, name, text))
+        try:
+            api = rosnode.get_api_uri(rosgraph.Master("/check_hostile_inputs"), self.manager, skip_cache=True)
+            _, _, bus = xmlrpc.client.ServerProxy(api).getBusInfo("/check_hostile_inputs")
+            links = [b[1:5] for b in bus if "image_raw" in b[4] or "camera_info" in b[4]]
+        except Exception as e:  # diagnostics only
+            links = str(e)
+        print("[ MEASURE ] %s: image publisher connections %d; manager's camera links %s"
+              % (label, self.image_pub.get_num_connections(), links))
+        have = lambda d: sum(1 for s in stamps if s in d)
+        print("[ MEASURE ] %s: of %d stamps, spots %d (truth %d), points %d (truth %d), pose_delta %d (truth %d)"
+              % (label, len(stamps), have(out["spots"]), have(gt["spots"]), have(out["points"]), have(gt["points"]),
+                 have(out["pose_delta"]), have(gt["pose"])))
         self.assertGreaterEqual(len(stamps), 8, label + ": too few good frames relayed")
         self.assertGreater(visible, 0, label + ": no spots for the relayed frames")
         self.assertGreaterEqual(found, 0.9 * visible, label + ": SpotDetector recall below 90 %")
