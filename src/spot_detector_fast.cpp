@@ -298,7 +298,7 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
   constexpr int kBin = ThresholdPass::kBin;
   StageTimer timer;
   const bool coarse =
-      p.coarse_threshold > 0 && planes_.colourPath() && planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
+      p.coarse_threshold > 0 && planes_.colourPath() && !planes_.matchedPath() && planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
   threshold_pass_.run(&planes_, coarse);
   threshold_ms_ = timer.lap();
 

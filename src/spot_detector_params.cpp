@@ -116,6 +116,9 @@ Changes FastParams::sanitize()
   clampInt(&min_pixels, 1, 10000, "min_pixels", &changes);
   clampInt(&coarse_threshold, 0, 255, "coarse_threshold", &changes);
   clampInt(&max_candidates, 1, 1000000, "max_candidates", &changes);
+  clampDouble(&matched_sigma_px, 0.0, 10.0, "matched_sigma_px", &changes);
+  clampDouble(&matched_detect_snr, 1.0, 100.0, "matched_detect_snr", &changes);
+  clampDouble(&matched_peak_snr, 1.0, 100.0, "matched_peak_snr", &changes);
   clampInt(&window_radius_px, 0, 24, "window_radius_px", &changes);
   clampDouble(&albedo_floor_dn, 0.0, 255.0, "albedo_floor_dn", &changes);
   clampDouble(&min_sigma_px, 0.0, 20.0, "min_sigma_px", &changes);

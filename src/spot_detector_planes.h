@@ -116,7 +116,15 @@ public:
   // A blob's peak score must reach this (min_peak in score units; on a Bayer
   // grid 3/4 of it: a 2 x 2 cell averages a dot's peak down by up to a
   // quarter for sigma 2 px, depending on where the dot falls in the cell).
-  int peakThreshold(int min_peak) const { return scale_ == 2 ? (3 * min_peak * unit_ + 3) / 4 : min_peak * unit_; }
+  int peakThreshold(int min_peak) const
+  {
+    if (matchedPath())
+      return matched_peak_;
+    return scale_ == 2 ? (3 * min_peak * unit_ + 3) / 4 : min_peak * unit_;
+  }
+  // Colour path with an ambient frame: scores are the matched-filtered
+  // difference (FastParams::matched_sigma_px), thresholds from its noise.
+  bool matchedPath() const { return !matched_.empty(); }
   // Full-resolution coordinate of a grid coordinate (centre of its cell).
   double toPixel(double g) const { return scale_ * g + 0.5 * (scale_ - 1); }
 
@@ -158,6 +166,12 @@ private:
   // threshold above it (1/16 DN).
   static constexpr int kBlock = 16;
   cv::Mat block_level_, block_threshold_;
+  // Matched path: the smoothed difference score per cell, in 1/kMatchedUnit
+  // DN above the frame's median; the peak threshold in the same units.
+  static constexpr int kMatchedUnit = 8;
+  cv::Mat matched_;
+  int matched_peak_ = 0;
+  void buildMatchedScores(const FastParams& p);
   std::vector<int16_t> row_scores_;
 };
 

@@ -195,6 +195,17 @@ struct FastParams
   // thresholds far too low): refused with the count instead of refining
   // them all (about 1 ms each: a 1024 x 1024 noise frame took 1.4-4.5 s).
   int max_candidates = 1000;
+  // With an ambient frame on the colour path (strobed operation): the
+  // difference's colour score smoothed by a Gaussian of this sigma (px; the
+  // matched filter of a dot) and thresholded against its own measured noise
+  // (robust spread over the frame): a candidate cell at matched_detect_snr
+  // sigma, a blob's peak at matched_peak_snr. The difference holds no rock,
+  // so a dot is found by its SNR, not by DN: at a dot/sun ratio of 0.27 the
+  // fixed 8 / 14 DN missed 22 % of the dots (peaks of 2-4 DN over 0.7 DN of
+  // noise). 0 = off (the thresholds above in DN).
+  double matched_sigma_px = 1.2;
+  double matched_detect_snr = 4.0;
+  double matched_peak_snr = 6.0;
 
   // Refinement.
   int window_radius_px = 0;  // half size of the refinement window; 0 = from the blob's size
