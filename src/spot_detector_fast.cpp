@@ -297,8 +297,8 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
 {
   constexpr int kBin = ThresholdPass::kBin;
   StageTimer timer;
-  const bool coarse =
-      p.coarse_threshold > 0 && planes_.colourPath() && !planes_.matchedPath() && planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
+  const bool coarse = p.coarse_threshold > 0 && planes_.colourPath() && !planes_.matchedPath() &&
+                      planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
   threshold_pass_.run(&planes_, coarse);
   threshold_ms_ = timer.lap();
 
@@ -315,8 +315,7 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
 
 // Stage 4 and the acceptance tests, candidate by candidate; blobs holding
 // several dots append their further seeds to candidates_ on the way.
-std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug,
-                                                   size_t max_candidates)
+std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug, size_t max_candidates)
 {
   const bool split = true;
   if (split)

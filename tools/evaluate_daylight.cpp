@@ -51,10 +51,10 @@ struct Options
   double texture_period = 0.02;
   double motion = 1.0;  // scale of the jitter (2 mm, 1 mrad at 0.7 Hz)
   std::vector<double> sweep;
-  bool normalise = false;  // --difference: divide the difference by the ambient (the albedo under the dot)
-  bool difference = false;  // strobed: the difference image into the detector (the emulation before the
-                            // SpotDetector had its strobed mode); default: detect(on, ambient) as the nodelet
-  double albedo = -1.0;    // > 0: a uniform rock of this albedo (no texture at all)
+  bool normalise = false;     // --difference: divide the difference by the ambient (the albedo under the dot)
+  bool difference = false;    // strobed: the difference image into the detector (the emulation before the
+                              // SpotDetector had its strobed mode); default: detect(on, ambient) as the nodelet
+  double albedo = -1.0;       // > 0: a uniform rock of this albedo (no texture at all)
   double camera_rate = 30.0;  // Hz, every frame (strobed: on and off alternate)
   bool extrapolate = false;   // strobed: the ambient from the two frames before (a nodelet that does not wait)
   bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
@@ -210,9 +210,8 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
       if (o.difference)
         image = difference(f.image, amb.image, o.normalise);
     }
-    const SpotDetectionResult det = o.strobe && !o.difference
-                                        ? detector.detect(image, texture, PixelFormat::kBgr8)
-                                        : detector.detect(image, PixelFormat::kBgr8);
+    const SpotDetectionResult det = o.strobe && !o.difference ? detector.detect(image, texture, PixelFormat::kBgr8)
+                                                              : detector.detect(image, PixelFormat::kBgr8);
     std::vector<cv::Point2d> truth;
     for (size_t b = 0; b < f.pixels.size(); ++b)
       if (f.visible[b])

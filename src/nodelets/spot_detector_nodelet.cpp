@@ -384,7 +384,8 @@ private:
     const ros::Duration reach(3.0 * ambient_max_gap_s_);
     for (const sensor_msgs::ImageConstPtr& m : ambient_cache_->getInterval(stamp - reach, stamp + reach))
       out.push_back(m);
-    std::sort(out.begin(), out.end(), [&](const sensor_msgs::ImageConstPtr& x, const sensor_msgs::ImageConstPtr& y)
+    std::sort(out.begin(), out.end(),
+              [&](const sensor_msgs::ImageConstPtr& x, const sensor_msgs::ImageConstPtr& y)
               { return std::abs((x->header.stamp - stamp).toSec()) < std::abs((y->header.stamp - stamp).toSec()); });
     if (!out.empty() && std::abs((out.front()->header.stamp - stamp).toSec()) > ambient_max_gap_s_)
       out.clear();
@@ -410,9 +411,9 @@ private:
   cv::Mat ambientFor(const sensor_msgs::Image& frame, PixelFormat format)
   {
     std::vector<sensor_msgs::ImageConstPtr> near = ambientsAround(frame.header.stamp);
-    std::string why = near.empty() ? "no camera/image_ambient frame within " + std::to_string(ambient_max_gap_s_) +
-                                         " s of the frame" :
-                                     ambientMismatch(*near.front(), frame, format);
+    std::string why =
+        near.empty() ? "no camera/image_ambient frame within " + std::to_string(ambient_max_gap_s_) + " s of the frame"
+                     : ambientMismatch(*near.front(), frame, format);
     if (!why.empty())
     {
       ++frames_without_ambient_;

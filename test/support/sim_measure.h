@@ -99,7 +99,7 @@ inline cv::Point2d subRayCentroid(const sls::Simulator& sim, int k, double t, in
 inline sls::SimulatorParams nightNoNoise()
 {
   sls::SimulatorParams c = sls::studySimulatorParams();  // the study's brightness: the clipping cases
-  c.lighting.sun_level = 0.0;  // no rock background under the dots
+  c.lighting.sun_level = 0.0;                            // no rock background under the dots
   c.sensor.read_noise_dn = 0.0;
   c.sensor.shot_noise = false;
   c.keep_linear = true;
