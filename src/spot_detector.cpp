@@ -3,6 +3,7 @@
 // and spot_detector_fast.cpp, the params' checks in spot_detector_params.cpp.
 // See the contract in spot_detector.h.
 #include "structured_light_stabilizer/spot_detector.h"
+#include "structured_light_stabilizer/spot_search_planner.h"
 
 #include <algorithm>
 #include <chrono>
@@ -11,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "spot_detector_method.h"
+#include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
 {
@@ -231,6 +233,127 @@ SpotDetectionResult SpotDetector::detect(const cv::Mat& image, const cv::Mat& am
   return result;
 }
 
+namespace
+{
+// How far a spot's refinement reached from its centroid (px): 3 sigma of its
+// fit and a pixel (the fast method), or its region's radius (the baseline).
+double reachOf(const Spot& s, const SpotQuality* q)
+{
+  if (q && q->sigma_px > 0)
+    return 3.0 * q->sigma_px + 1.0;
+  return std::sqrt(std::max(1.0f, s.area) / detail::kPi) + 1.0;
+}
+
+// Whether a spot found in `region` had its window cut by an edge of the
+// region that is not the frame's.
+bool cutByRegion(const Spot& s, double reach, const cv::Rect& region, const cv::Size& frame)
+{
+  const bool left = region.x > 0 && s.x - reach < region.x;
+  const bool top = region.y > 0 && s.y - reach < region.y;
+  const bool right = region.x + region.width < frame.width && s.x + reach > region.x + region.width - 1;
+  const bool bottom = region.y + region.height < frame.height && s.y + reach > region.y + region.height - 1;
+  return left || top || right || bottom;
+}
+
+void addTimings(const SpotDetectorTimings& t, SpotDetectorTimings* sum)
+{
+  sum->blur_ms += t.blur_ms;
+  sum->hsv_ms += t.hsv_ms;
+  sum->in_range_ms += t.in_range_ms;
+  sum->opening_ms += t.opening_ms;
+  sum->labelling_ms += t.labelling_ms;
+  sum->centroids_ms += t.centroids_ms;
+  sum->sort_ms += t.sort_ms;
+  sum->threshold_ms += t.threshold_ms;
+  sum->refine_ms += t.refine_ms;
+}
+
+void addDebug(const SpotDetectorDebug& d, const cv::Point& at, SpotDetectorDebug* sum)
+{
+  for (cv::Rect w : d.windows)
+    sum->windows.push_back(w + at);
+  sum->sigmas_px.insert(sum->sigmas_px.end(), d.sigmas_px.begin(), d.sigmas_px.end());
+  sum->chroma.insert(sum->chroma.end(), d.chroma.begin(), d.chroma.end());
+  for (const SpotDetectorDebug::Rejection& r : d.rejected)
+    sum->rejected.push_back({r.x + at.x, r.y + at.y, r.reason});
+  sum->candidates += d.candidates;
+  sum->coarse_candidates += d.coarse_candidates;
+  sum->fitted += d.fitted;
+}
+}  // namespace
+
+bool SpotDetector::canSearchRegions(PixelFormat format, bool with_ambient) const
+{
+  return params_.method == SpotMethod::kFast &&
+         !(with_ambient && hasColour(format) && params_.projector_color != ProjectorColor::kNir &&
+           params_.projector_color != ProjectorColor::kWhite);
+}
+
+SpotDetectionResult SpotDetector::detectIn(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                                           const std::vector<cv::Rect>& regions, SpotDetectorDebug* debug,
+                                           SpotDetectorTimings* timings)
+{
+  if (regions.empty() || !canSearchRegions(format, !ambient.empty()))
+    return detect(image, ambient, format, debug, timings);
+  if (debug)
+    *debug = SpotDetectorDebug();
+  if (timings)
+    *timings = SpotDetectorTimings();
+  SpotDetectionResult result;
+  result.error = checkInput(image, ambient, format);
+  if (!result.error.empty())
+    return result;
+  StageTimer timer;
+  std::vector<std::pair<Spot, SpotQuality>> found;
+  const std::vector<cv::Rect> merged = mergeSearchRegions(regions, image.size());
+  if (debug)
+    debug->regions = merged;
+  for (const cv::Rect& region : merged)
+  {
+    SpotDetectorDebug d;
+    SpotDetectorTimings t;
+    const cv::Mat roi_ambient = ambient.empty() ? ambient : ambient(region);
+    SpotDetectionResult part = method_->detect(image(region), roi_ambient, format, params_, debug ? &d : nullptr, &t);
+    if (!part.ok)
+    {
+      part.error = "region " + std::to_string(region.width) + "x" + std::to_string(region.height) + "+" +
+                   std::to_string(region.x) + "+" + std::to_string(region.y) + ": " + part.error;
+      return part;
+    }
+    for (size_t k = 0; k < part.spots.size(); ++k)
+    {
+      Spot s = part.spots[k];
+      s.x += region.x;
+      s.y += region.y;
+      const SpotQuality q = k < part.quality.size() ? part.quality[k] : SpotQuality();
+      if (!cutByRegion(s, reachOf(s, k < part.quality.size() ? &q : nullptr), region, image.size()) &&
+          std::none_of(found.begin(), found.end(),
+                       [&](const std::pair<Spot, SpotQuality>& f)
+                       { return std::abs(f.first.x - s.x) < 1.0 && std::abs(f.first.y - s.y) < 1.0; }))
+        found.emplace_back(s, q);
+    }
+    if (timings)
+      addTimings(t, timings);
+    if (debug)
+      addDebug(d, region.tl(), debug);
+  }
+  for (const auto& f : found)
+    result.spots.push_back(f.first);
+  sortIntoRows(&result.spots, params_.projector_cols, params_.projector_rows, params_.method == SpotMethod::kBaseline);
+  const bool with_quality = params_.method != SpotMethod::kBaseline;
+  for (size_t k = 0; with_quality && k < result.spots.size(); ++k)
+    for (const auto& f : found)
+      if (f.first.x == result.spots[k].x && f.first.y == result.spots[k].y)
+      {
+        result.quality.push_back(f.second);
+        break;
+      }
+  if (timings)
+    timings->total_ms = timer.lap();
+  result.ok = true;
+  return result;
+}
+
 // ---------------------------------------------------------------------------
 
 void sortIntoRows(Spots* spots, int cols, int rows, bool assign_beams)
@@ -310,6 +433,9 @@ cv::Mat drawSpotDebugImage(const cv::Mat& image, PixelFormat format, const Spots
     cv::findContours(debug.mask.clone(), contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
     cv::drawContours(out, contours, -1, cv::Scalar(255, 0, 255), 1);
   }
+  // The regions searched when tracking (dark blue), the refinement windows (magenta).
+  for (const cv::Rect& r : debug.regions)
+    cv::rectangle(out, r, cv::Scalar(128, 64, 0), 1);
   for (const cv::Rect& r : debug.windows)
     cv::rectangle(out, r, cv::Scalar(255, 0, 255), 1);
   // Rejected candidates: a small orange circle (why is in the debug struct).

@@ -29,6 +29,7 @@
 #include "structured_light_stabilizer/sim/radiometry.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
+#include "structured_light_stabilizer/spot_search_planner.h"
 
 using namespace structured_light_stabilizer;
 
@@ -119,6 +120,92 @@ void benchmarkInputs(int detections)
     std::printf("fast, %-32s median %.3f ms thread CPU (p90 %.3f), %.1f spots/frame\n", k.name, median(cpu),
                 percentile(cpu, 0.9), static_cast<double>(spots) / detections);
   }
+}
+
+// Recall and centroid RMS of `spots` against the frame's true dot pixels
+// (a dot counts as found with a spot within 2 px), accumulated.
+struct TruthScore
+{
+  size_t dots = 0, found = 0;
+  double sq = 0.0;
+  void add(const SimFrame& frame, const Spots& spots)
+  {
+    for (size_t b = 0; b < frame.pixels.size(); ++b)
+    {
+      if (!frame.visible[b])
+        continue;
+      ++dots;
+      double best = 2.0;
+      for (const Spot& s : spots)
+        best = std::min(best, std::hypot(s.x - frame.pixels[b].x, s.y - frame.pixels[b].y));
+      if (best < 2.0)
+      {
+        ++found;
+        sq += best * best;
+      }
+    }
+  }
+  double recall() const { return dots ? static_cast<double>(found) / dots : 0.0; }
+  double rms() const { return found ? std::sqrt(sq / found) : 0.0; }
+};
+
+// Tracking: a 30 Hz sequence of one scene (the rig jittering 2 mm), the
+// baseline, the fast method searching every frame in full, and the fast
+// method in the windows of SpotSearchPlanner (the nodelet's default), on the
+// same frames; recall and centroid RMS of both fast runs against the truth.
+void benchmarkTracking(int frames, int repeats)
+{
+  SimulatorParams cfg = studySimulatorParams();
+  cfg.lighting.sun_level = 0.5;
+  cfg.clutter.green_specks = 20;
+  cfg.clutter.olive_minerals = 20;
+  cfg.rock.seed = 1100;
+  cfg.motion.jitter_translation_m = 0.002;
+  const Simulator sim(cfg);
+  std::vector<SimFrame> seq;
+  for (int i = 0; i < frames; ++i)
+    seq.push_back(sim.render(i / 30.0));
+  SpotDetectorParams pb;
+  pb.method = SpotMethod::kBaseline;
+  SpotDetector baseline(pb), full, tracked;
+  SpotSearchPlanner planner;
+  std::vector<double> cpu_b, cpu_f, cpu_t;
+  TruthScore score_f, score_t;
+  size_t searched = 0;
+  for (int r = 0; r < repeats; ++r)
+  {
+    planner.reset();
+    for (const SimFrame& frame : seq)
+    {
+      const cv::Mat& im = frame.image;
+      double c0 = threadCpuMs();
+      baseline.detect(im, PixelFormat::kBgr8);
+      cpu_b.push_back(threadCpuMs() - c0);
+      c0 = threadCpuMs();
+      const SpotDetectionResult f = full.detect(im, PixelFormat::kBgr8);
+      cpu_f.push_back(threadCpuMs() - c0);
+      c0 = threadCpuMs();
+      const std::vector<cv::Rect> regions = planner.plan(im.size());
+      const SpotDetectionResult t = tracked.detectIn(im, cv::Mat(), PixelFormat::kBgr8, regions);
+      planner.update(t);
+      cpu_t.push_back(threadCpuMs() - c0);
+      for (const cv::Rect& g : regions)
+        searched += static_cast<size_t>(g.area());
+      searched += regions.empty() ? im.total() : 0;
+      score_f.add(frame, f.spots);
+      score_t.add(frame, t.spots);
+    }
+  }
+  const double n = static_cast<double>(cpu_t.size());
+  std::printf(
+      "tracking, %d frames at 30 Hz x %d: baseline %.3f ms, fast full search %.3f ms, fast tracked %.3f ms "
+      "thread CPU (median; tracked p90 %.3f); %ld full searches; %.1f %% of the pixels searched\n",
+      frames, repeats, median(cpu_b), median(cpu_f), median(cpu_t), percentile(cpu_t, 0.9), planner.fullSearches(),
+      100.0 * searched / (n * seq.front().image.total()));
+  std::printf("  against the truth: full search recall %.4f, centroid RMS %.4f px; tracked recall %.4f, %.4f px\n",
+              score_f.recall(), score_f.rms(), score_t.recall(), score_t.rms());
+  std::printf("  ratio baseline/fast: %.1fx full search, %.1fx tracked (median thread CPU)\n",
+              median(cpu_b) / median(cpu_f), median(cpu_b) / median(cpu_t));
 }
 
 // Pins the process to the first core it may run on; false when the OS refuses.
@@ -235,6 +322,7 @@ int main(int argc, char** argv)
               median(f_thr), median(f_lab), median(f_ref));
   std::printf("ratio baseline/fast: %.1fx (median wall), %.1fx (min wall), %.1fx (median thread CPU)\n",
               median(tb) / median(tf), percentile(tb, 0.0) / percentile(tf, 0.0), median(cpu_b) / median(cpu_f));
+  benchmarkTracking(std::max(frames, 30), repeats);
   benchmarkInputs(frames * repeats);
   return 0;
 }

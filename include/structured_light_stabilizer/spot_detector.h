@@ -263,6 +263,7 @@ struct SpotDetectorTimings
 struct SpotDetectorDebug
 {
   cv::Mat mask;                   // baseline: final binary mask (after the opening)
+  std::vector<cv::Rect> regions;  // detectIn: the regions searched (empty: the whole frame)
   std::vector<cv::Rect> windows;  // fast: refinement window of each kept spot
   std::vector<double> sigmas_px;  // fast: fitted sigma of each kept spot
   std::vector<cv::Vec2d> chroma;  // fast: (reference, third) excess / signal excess of each kept spot
@@ -323,6 +324,20 @@ public:
   // Empty = none (as the overload above).
   SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                              SpotDetectorDebug* debug = nullptr, SpotDetectorTimings* timings = nullptr);
+  // Detection in regions of the frame only (SpotSearchPlanner::plan; empty:
+  // the whole frame), spots in frame coordinates. Regions are merged where
+  // that costs few pixels (mergeSearchRegions); a dot so near a region's inner
+  // edge that its refinement window was cut is left out (a region that ends at
+  // the frame's edge cuts nothing): another region, or the next frame, has it
+  // whole. A dot found in two overlapping regions is kept once.
+  SpotDetectionResult detectIn(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                               const std::vector<cv::Rect>& regions, SpotDetectorDebug* debug = nullptr,
+                               SpotDetectorTimings* timings = nullptr);
+  // Whether detectIn() can search regions of such frames: the fast method,
+  // except on colour frames with an ambient frame, whose matched filter takes
+  // its thresholds from the noise of the whole frame (detectIn then searches
+  // the whole frame).
+  bool canSearchRegions(PixelFormat format, bool with_ambient) const;
 
 private:
   SpotDetectorParams params_;

@@ -28,6 +28,7 @@
 #include "structured_light_stabilizer/SpotDetectorConfig.h"
 #include "structured_light_stabilizer/ambient_compensation.h"
 #include "structured_light_stabilizer/spot_detector.h"
+#include "structured_light_stabilizer/spot_search_planner.h"
 #include "conversions.h"
 #include "nodelet_base.h"
 
@@ -123,6 +124,24 @@ void configFromParams(const SpotDetectorParams& p, Config* config)
   config->saturation_level = f.saturation_level;
 }
 
+SpotSearchParams searchParamsFromConfig(const Config& config)
+{
+  SpotSearchParams p;
+  p.track = config.track;
+  p.margin_px = config.track_margin_px;
+  p.band_rows = config.track_band_rows;
+  p.full_search_every = config.full_search_every;
+  return p;
+}
+
+void configFromSearchParams(const SpotSearchParams& p, Config* config)
+{
+  config->track = p.track;
+  config->track_margin_px = p.margin_px;
+  config->track_band_rows = p.band_rows;
+  config->full_search_every = p.full_search_every;
+}
+
 // Why an image message cannot be read as `format` (empty when it can):
 // style weak spot 2, refuse with a clear message instead of an OpenCV abort.
 std::string inconsistency(const sensor_msgs::Image& msg, PixelFormat format)
@@ -162,6 +181,15 @@ cv::Mat imageView(const sensor_msgs::Image& msg, PixelFormat format, cv::Mat* sw
       row[x] = static_cast<uint16_t>((row[x] >> 8) | (row[x] << 8));
   }
   return *swapped;
+}
+
+// The share of the frame's pixels in the regions (which may overlap a little).
+double searchedFraction(const std::vector<cv::Rect>& regions, const cv::Size& frame)
+{
+  double n = 0;
+  for (const cv::Rect& r : mergeSearchRegions(regions, frame))
+    n += r.area();
+  return std::min(1.0, n / std::max(1.0, static_cast<double>(frame.area())));
 }
 
 // The mosaic of a frame for the ambient compensation.
@@ -288,7 +316,12 @@ private:
     for (const std::string& change : p.sanitize())
       NODELET_WARN("SpotDetector: %s", change.c_str());
     configFromParams(p, &config);  // rqt_reconfigure shows the values actually used
+    SpotSearchParams search = searchParamsFromConfig(config);
+    for (const std::string& change : search.sanitize())
+      NODELET_WARN("SpotDetector: %s", change.c_str());
+    configFromSearchParams(search, &config);
     params_ = p;
+    search_params_ = search;
     enabled_ = config.enabled;
     params_changed_ = true;
   }
@@ -444,12 +477,16 @@ private:
       enabled = enabled_;
       if (params_changed_)
       {
-        detector_.setParams(params_);  // applies from this frame on
+        detector_.setParams(params_);        // applies from this frame on
+        planner_.setParams(search_params_);  // and a full search with them
         params_changed_ = false;
       }
     }
     if (!enabled)
+    {
+      planner_.reset();  // the dots may be anywhere when frames come again
       return;
+    }
     PixelFormat format;
     if (!pixelFormatFromEncoding(msg->encoding, &format))
     {
@@ -469,8 +506,21 @@ private:
     const bool want_debug = pub_debug_.getNumSubscribers() > 0;
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
+    // The fast method searches where the dots can be (SpotSearchPlanner);
+    // the study's chain, and the matched filter of strobed colour frames, the
+    // whole frame.
+    const bool track = detector_.canSearchRegions(format, !ambient.empty());
+    const std::vector<cv::Rect> regions = track ? planner_.plan(image.size()) : std::vector<cv::Rect>();
     const SpotDetectionResult result =
-        detector_.detect(image, ambient, format, want_debug ? &debug : nullptr, &timings);
+        detector_.detectIn(image, ambient, format, regions, want_debug ? &debug : nullptr, &timings);
+    if (track)
+    {
+      planner_.update(result);
+      full_searches_ = planner_.fullSearches();
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      full_reason_ = planner_.lastFullReason();
+    }
+    searched_fraction_ = regions.empty() ? 1.0 : searchedFraction(regions, image.size());
     ambient_msg_.reset();
     if (!result.ok)
     {
@@ -518,8 +568,10 @@ private:
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   {
     std::string method, color;
+    bool track;
     {
       boost::recursive_mutex::scoped_lock lock(config_mutex_);
+      track = search_params_.track;
       method = spotMethodName(params_.method);
       color = projectorColorName(params_.projector_color);
     }
@@ -547,6 +599,10 @@ private:
     }
     stat.add("frames dropped (bad input)", framesDropped());
     stat.add("dots in last frame", last_spots_);
+    stat.add("tracking (search windows)", track && method == "fast");
+    stat.addf("share of the frame searched last frame (%)", "%.1f", 100.0 * searched_fraction_.load());
+    stat.add("full searches", full_searches_.load());
+    stat.add("reason of the last full search", full_reason_);
     stat.add("processing time last frame (ms)", last_ms_);
     stat.add("processing time mean (ms)", mean_ms_);
     if (!last_drop.empty())
@@ -564,12 +620,14 @@ private:
   boost::recursive_mutex config_mutex_;
   std::unique_ptr<dynamic_reconfigure::Server<Config>> reconfigure_server_;
   SpotDetectorParams params_;
+  SpotSearchParams search_params_;
   bool enabled_ = true;
   bool params_changed_ = true;
 
   // Only process() touches the detector and these buffers, under process_mutex_.
   std::mutex process_mutex_;
   SpotDetector detector_;
+  SpotSearchPlanner planner_;
   bool mono_warned_ = false;
   cv::Mat swapped_, ambient_swapped_, ambient_swapped_b_;
   sensor_msgs::ImageConstPtr ambient_msg_;
@@ -597,6 +655,9 @@ private:
   int last_spots_ = 0, frames_ = 0, frames_with_ambient_ = 0;
   std::atomic<int> frames_without_ambient_{0};
   std::atomic<int> frames_compensated_{0}, frames_nearest_ambient_{0};  // how the ambient frame was made
+  std::atomic<double> searched_fraction_{1.0};                          // of the last frame's pixels
+  std::atomic<long> full_searches_{0};
+  std::string full_reason_;  // under stats_mutex_
 };
 
 }  // namespace structured_light_stabilizer

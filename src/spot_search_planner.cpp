@@ -1,0 +1,203 @@
+// SpotSearchPlanner: the regions of the next frame where dots can be (see
+// spot_search_planner.h for the geometry behind it).
+#include "structured_light_stabilizer/spot_search_planner.h"
+
+#include <algorithm>
+#include <cmath>
+
+namespace structured_light_stabilizer
+{
+
+namespace
+{
+constexpr double kSigmaWindows = 4.0;  // a dot's window: 4 sigma each side (the refinement uses 3)
+constexpr double kDefaultSigma = 4.0;  // px, a dot of unknown size (the baseline reports none)
+
+// `r` widened to even coordinates and clipped to the frame.
+cv::Rect evenClip(const cv::Rect& r, const cv::Size& frame)
+{
+  int x0 = std::max(0, r.x) & ~1, y0 = std::max(0, r.y) & ~1;
+  int x1 = std::min(frame.width, r.x + r.width), y1 = std::min(frame.height, r.y + r.height);
+  x1 = std::min(frame.width, x1 + (x1 & 1));
+  y1 = std::min(frame.height, y1 + (y1 & 1));
+  return x1 > x0 && y1 > y0 ? cv::Rect(x0, y0, x1 - x0, y1 - y0) : cv::Rect();
+}
+
+// Whether one box over both wastes little: at most a quarter more pixels
+// than the two cover (each region costs a call; a merged box, its pixels).
+bool worthMerging(const cv::Rect& a, const cv::Rect& b)
+{
+  const double cover = static_cast<double>(a.area()) + b.area() - (a & b).area();
+  return (a | b).area() <= 1.25 * cover;
+}
+}  // namespace
+
+std::string SpotSearchParams::validate() const
+{
+  if (!std::isfinite(margin_px) || margin_px < 0 || margin_px > 1000)
+    return "search margin_px " + std::to_string(margin_px) + " out of [0, 1000]";
+  if (band_rows < 0)
+    return "search band_rows " + std::to_string(band_rows) + " is negative";
+  if (full_search_every < 0)
+    return "full_search_every " + std::to_string(full_search_every) + " is negative";
+  return std::string();
+}
+
+std::vector<std::string> SpotSearchParams::sanitize()
+{
+  std::vector<std::string> changes;
+  if (!std::isfinite(margin_px) || margin_px < 0 || margin_px > 1000)
+  {
+    changes.push_back("search margin_px " + std::to_string(margin_px) + " out of [0, 1000]: 8 used");
+    margin_px = 8.0;
+  }
+  if (band_rows < 0)
+  {
+    changes.push_back("search band_rows " + std::to_string(band_rows) + " negative: 0 used (no band)");
+    band_rows = 0;
+  }
+  if (full_search_every < 0)
+  {
+    changes.push_back("full_search_every " + std::to_string(full_search_every) + " negative: 0 used");
+    full_search_every = 0;
+  }
+  return changes;
+}
+
+std::vector<cv::Rect> mergeSearchRegions(const std::vector<cv::Rect>& regions, const cv::Size& frame)
+{
+  std::vector<cv::Rect> out;
+  out.reserve(regions.size());
+  for (const cv::Rect& r : regions)
+  {
+    const cv::Rect c = evenClip(r, frame);
+    if (c.area() > 0)
+      out.push_back(c);
+  }
+  // Merge pairs into their bounding box where that wastes little, until no
+  // pair is worth it (a merged box can reach further boxes: start over after
+  // each merge). Regions may still overlap: SpotDetector::detectIn keeps one
+  // of a dot found twice.
+  bool merged = true;
+  while (merged)
+  {
+    merged = false;
+    for (size_t i = 0; i < out.size() && !merged; ++i)
+      for (size_t j = i + 1; j < out.size() && !merged; ++j)
+        if (worthMerging(out[i], out[j]))
+        {
+          out[i] |= out[j];
+          out.erase(out.begin() + static_cast<std::ptrdiff_t>(j));
+          merged = true;
+        }
+  }
+  std::sort(out.begin(), out.end(),
+            [](const cv::Rect& a, const cv::Rect& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
+  return out;
+}
+
+SpotSearchPlanner::SpotSearchPlanner(const SpotSearchParams& params)
+{
+  setParams(params);
+}
+
+std::vector<std::string> SpotSearchPlanner::setParams(const SpotSearchParams& params)
+{
+  params_ = params;
+  std::vector<std::string> changes = params_.sanitize();
+  reset();
+  return changes;
+}
+
+void SpotSearchPlanner::reset()
+{
+  need_full_ = true;
+  full_reason_ = "start";
+  dots_.clear();
+  radius_.clear();
+}
+
+std::vector<cv::Rect> SpotSearchPlanner::plan(const cv::Size& frame)
+{
+  ++frames_;
+  if (frame != frame_)
+  {
+    frame_ = frame;
+    need_full_ = true;
+    full_reason_ = "frame size " + std::to_string(frame.width) + "x" + std::to_string(frame.height);
+  }
+  if (params_.full_search_every > 0 && since_full_ + 1 >= params_.full_search_every && !need_full_)
+  {
+    need_full_ = true;
+    full_reason_ = "every " + std::to_string(params_.full_search_every) + " frames";
+  }
+  last_full_ = !params_.track || need_full_;
+  if (last_full_)
+  {
+    ++full_searches_;
+    since_full_ = 0;
+    return {};
+  }
+  ++since_full_;
+  std::vector<cv::Rect> regions;
+  regions.reserve(dots_.size() + 1);
+  for (size_t i = 0; i < dots_.size(); ++i)
+  {
+    const int h = static_cast<int>(std::ceil(radius_[i] + params_.margin_px));
+    regions.emplace_back(static_cast<int>(std::floor(dots_[i].x)) - h, static_cast<int>(std::floor(dots_[i].y)) - h,
+                         2 * h + 2, 2 * h + 2);
+  }
+  if (params_.band_rows > 0)
+  {
+    // Consecutive bands overlap by the reach of a dot's refinement (3 sigma
+    // and a pixel, for sigma up to 4 px) on each side, so that a dot cut by
+    // one band's edge lies whole inside the next.
+    const int bands = std::max(1, (frame.height + params_.band_rows - 1) / params_.band_rows);
+    band_ = (band_ + 1) % bands;
+    const int overlap = static_cast<int>(std::ceil(3.0 * kDefaultSigma + 1.0));
+    regions.emplace_back(0, band_ * params_.band_rows - overlap, frame.width, params_.band_rows + 2 * overlap);
+  }
+  return mergeSearchRegions(regions, frame);
+}
+
+void SpotSearchPlanner::update(const SpotDetectionResult& result)
+{
+  if (!result.ok)
+  {
+    reset();
+    full_reason_ = "refused frame";
+    return;
+  }
+  // Dots of the last frame with no dot of this one within their window.
+  size_t lost = 0;
+  if (!last_full_)
+  {
+    for (size_t i = 0; i < dots_.size(); ++i)
+    {
+      const double reach = radius_[i] + params_.margin_px;
+      const bool found = std::any_of(
+          result.spots.begin(), result.spots.end(),
+          [&](const Spot& s) { return std::abs(s.x - dots_[i].x) <= reach && std::abs(s.y - dots_[i].y) <= reach; });
+      lost += found ? 0 : 1;
+    }
+  }
+  need_full_ = lost > std::max<size_t>(2, dots_.size() / 10);
+  if (need_full_)
+    full_reason_ = "lost " + std::to_string(lost) + " of " + std::to_string(dots_.size()) + " dots";
+  dots_.clear();
+  radius_.clear();
+  for (size_t i = 0; i < result.spots.size(); ++i)
+  {
+    const double sigma =
+        i < result.quality.size() && result.quality[i].sigma_px > 0 ? result.quality[i].sigma_px : kDefaultSigma;
+    dots_.emplace_back(result.spots[i].x, result.spots[i].y);
+    radius_.push_back(kSigmaWindows * sigma + 1.0);
+  }
+  if (dots_.empty())
+  {
+    need_full_ = true;
+    full_reason_ = "no dot";
+  }
+}
+
+}  // namespace structured_light_stabilizer
