@@ -1,5 +1,7 @@
 #include "nodelet_base.h"
 
+#include <time.h>
+
 namespace structured_light_stabilizer
 {
 
@@ -45,6 +47,23 @@ void NodeletBase::setUpDiagnostics(const std::string& hardware_id)
 {
   diagnostics_.reset(new diagnostic_updater::Updater(getNodeHandle(), getPrivateNodeHandle(), getName()));
   diagnostics_->setHardwareID(hardware_id);
+  diagnostics_->add("callback CPU",
+                    [this](diagnostic_updater::DiagnosticStatusWrapper& stat)
+                    {
+                      const int64_t n = callbacks_.load(), ns = callback_cpu_ns_.load();
+                      stat.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "%.3f ms of thread CPU per callback",
+                                    n > 0 ? 1e-6 * ns / n : 0.0);
+                      stat.add("callbacks", n);
+                      stat.addf("thread CPU total (s)", "%.6f", 1e-9 * ns);
+                      stat.addf("thread CPU per callback (ms)", "%.4f", n > 0 ? 1e-6 * ns / n : 0.0);
+                    });
+}
+
+int64_t NodeletBase::threadCpuNs()
+{
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<int64_t>(ts.tv_sec) * 1000000000LL + ts.tv_nsec;
 }
 
 void NodeletBase::addFrequencyStatus()

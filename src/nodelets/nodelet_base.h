@@ -112,9 +112,13 @@ protected:
 
   // Runs a frame callback's work; an exception (cv::Exception, cv_bridge's,
   // anything) drops the frame with its message instead of killing the manager.
+  // The thread CPU time of the work is added to the "callback CPU" status
+  // (setUpDiagnostics): the nodelet's own share of the manager's CPU, message
+  // transport and deserialisation excluded (scripts/benchmark).
   template <class Work>
   void guarded(Work&& work)
   {
+    const int64_t start_ns = threadCpuNs();
     try
     {
       work();
@@ -127,7 +131,10 @@ protected:
     {
       dropFrame("frame dropped: unknown exception");
     }
+    callback_cpu_ns_ += threadCpuNs() - start_ns;
+    ++callbacks_;
   }
+  static int64_t threadCpuNs();
 
   // First thing in a derived destructor: stops the diagnostics timer and the
   // inputs, so that no callback runs into the members being destroyed.
@@ -140,6 +147,8 @@ private:
   ros::Timer diagnostics_timer_;
   ros::WallTimer diagnostics_wall_timer_;
   DropLog drop_log_;
+  std::atomic<int64_t> callback_cpu_ns_{0};
+  std::atomic<int64_t> callbacks_{0};
   std::atomic<int> frames_dropped_{0};
   mutable std::mutex drop_mutex_;
   std::string last_drop_reason_;  // under drop_mutex_

@@ -1,0 +1,163 @@
+#!/usr/bin/env python3
+"""Benchmark probe (scripts/benchmark): the CPU of a nodelet manager and of
+each of its nodelets while the benchmark runs; not a part of the pipeline.
+
+Every nodelet of the package reports a "callback CPU" diagnostic status: the
+thread CPU time its frame callbacks took (the core's work, conversions and
+publication included; receiving and deserialising messages, which happen on
+roscpp's threads, not). This node keeps the newest of those per nodelet and
+samples the manager process's user + system CPU (/proc/<pid>/stat; the
+manager is found by its name, ~manager), and times each frame from its
+publication (the arrival of camera/camera_info, published with the image by
+the CameraDriver and by rosbag play) to the arrival of its pose_delta (wall
+clock, so also on a replayed bag's clock). At shutdown it writes to ~out_file:
+
+  manager_cpu_s: user + system seconds of the manager while this node ran
+  published: camera_info messages seen (all frames while this node ran)
+  frames: camera_info messages after the first pose_delta (earlier ones are
+          the warm-up: the lazy subscriptions connecting)
+  pose_deltas, dropped: frames with no pose_delta within 1 s (those of the
+          last second not counted)
+  latency_median_ms, latency_p99_ms: publication -> pose_delta
+  nodelets: {<diagnostic name>: {callbacks: N, cpu_s: seconds, ms_per_callback}}
+
+Parameters: ~manager (default stabilizer_manager), ~out_file (YAML path).
+"""
+import os
+import threading
+import time
+
+import numpy as np
+import rospy
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import CameraInfo
+from structured_light_stabilizer.msg import PoseDelta
+
+IN_FLIGHT_S = 1.0
+
+
+def find_pid(name):
+    """Pid of the nodelet manager whose command line carries __name:=name."""
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open("/proc/%s/cmdline" % entry, "rb") as f:
+                args = f.read().split(b"\0")
+        except OSError:
+            continue
+        if b"manager" in args and ("__name:=%s" % name).encode() in args:
+            return int(entry)
+    return None
+
+
+def cpu_seconds(pid):
+    """User + system CPU seconds of a process (None once it is gone)."""
+    try:
+        with open("/proc/%d/stat" % pid) as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / float(os.sysconf("SC_CLK_TCK"))
+
+
+class Probe:
+    def __init__(self):
+        self.manager = rospy.get_param("~manager", "stabilizer_manager")
+        self.out_file = rospy.get_param("~out_file", "")
+        self.nodelets = {}
+        self.pid = None
+        self.cpu_start = None
+        self.cpu_last = None
+        self.lock = threading.Lock()
+        self.published = {}  # stamp -> wall time of the camera_info
+        self.latencies = []
+        self.first_pose = None
+        self.infos = 0
+        rospy.Subscriber("/diagnostics", DiagnosticArray, self.diagnostics_cb, queue_size=50)
+        rospy.Subscriber("camera/camera_info", CameraInfo, self.info_cb, queue_size=100)
+        rospy.Subscriber("pose_delta", PoseDelta, self.pose_cb, queue_size=100)
+        self.timer = rospy.Timer(rospy.Duration(0.2), self.sample)
+
+    def sample(self, _event):
+        if self.pid is None:
+            self.pid = find_pid(self.manager)
+            if self.pid is None:
+                return
+        cpu = cpu_seconds(self.pid)
+        if cpu is None:
+            return
+        if self.cpu_start is None:
+            self.cpu_start = cpu
+        self.cpu_last = cpu
+
+    def info_cb(self, msg):
+        with self.lock:
+            self.published[msg.header.stamp.to_nsec()] = time.time()
+            self.infos += 1
+
+    def pose_cb(self, msg):
+        now = time.time()
+        with self.lock:
+            if self.first_pose is None:
+                self.first_pose = now
+            t = self.published.pop(msg.header.stamp.to_nsec(), None)
+            if t is not None and t >= self.first_pose:
+                self.latencies.append(1e3 * (now - t))
+
+    def frame_figures(self):
+        with self.lock:
+            end = time.time()
+            first = self.first_pose if self.first_pose is not None else end
+            lat = np.array(self.latencies)
+            # Still waiting: dropped unless published in the last second.
+            dropped = sum(1 for t in self.published.values() if first <= t < end - IN_FLIGHT_S)
+            counted = len(lat) + dropped
+        return {
+            "published": self.infos,
+            "frames": counted,
+            "pose_deltas": int(len(lat)),
+            "dropped": int(dropped),
+            "latency_median_ms": float(np.median(lat)) if len(lat) else None,
+            "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
+        }
+
+    def diagnostics_cb(self, msg):
+        for status in msg.status:
+            if not status.name.endswith(": callback CPU"):
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            try:
+                self.nodelets[status.name[: -len(": callback CPU")]] = {
+                    "callbacks": int(values["callbacks"]),
+                    "cpu_s": float(values["thread CPU total (s)"]),
+                    "ms_per_callback": float(values["thread CPU per callback (ms)"]),
+                }
+            except (KeyError, ValueError):
+                rospy.logwarn_throttle(10.0, "benchmark_probe: malformed callback CPU status from %s", status.name)
+
+    def write(self):
+        self.sample(None)
+        result = {
+            "manager": self.manager,
+            "manager_pid": self.pid,
+            "manager_cpu_s": (self.cpu_last - self.cpu_start) if self.cpu_start is not None else None,
+            "nodelets": self.nodelets,
+        }
+        result.update(self.frame_figures())
+        if self.out_file:
+            with open(self.out_file, "w") as f:
+                yaml.safe_dump(result, f, default_flow_style=False)
+        rospy.loginfo("benchmark_probe: %s", result)
+
+
+def main():
+    rospy.init_node("benchmark_probe")
+    probe = Probe()
+    rospy.on_shutdown(probe.write)
+    rospy.spin()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+#!/usr/bin/env python3
+"""The tables of scripts/benchmark from the YAML files of one run.
+
+usage: benchmark_report.py OUT_DIR BAG
+Reads OUT_DIR/sim_{30,60}.yaml (demo monitor), sim_{30,60}_probe.yaml and
+replay_*.yaml (benchmark probe); prints Markdown.
+"""
+import os
+import sys
+
+import rosbag
+import yaml
+
+NODELETS = ["camera_driver", "spot_detector", "spot_detector_baseline", "triangulator", "pose_delta"]
+
+
+def load(path):
+    try:
+        with open(path) as f:
+            return yaml.safe_load(f) or {}
+    except OSError:
+        return {}
+
+
+def fmt(v, spec="%.2f"):
+    return spec % v if isinstance(v, (int, float)) else "n/a"
+
+
+def per_frame_ms(probe, frames):
+    cpu = probe.get("manager_cpu_s")
+    return 1e3 * cpu / frames if cpu is not None and frames else None
+
+
+def nodelet_ms(probe, name):
+    n = probe.get("nodelets", {}).get("/" + name) or probe.get("nodelets", {}).get(name)
+    return n.get("ms_per_callback") if n else None
+
+
+def latency_cells(p):
+    med, p99 = p.get("latency_median_ms"), p.get("latency_p99_ms")
+    ratio = p99 / med if med and p99 else None
+    return "%s | %s | %s" % (fmt(med, "%.1f"), fmt(p99, "%.1f"), fmt(ratio))
+
+
+def sim_table(out):
+    print("## Simulator in the pipeline's manager\n")
+    print("| rate | frames | dropped | latency median ms | p99 ms | p99/median | manager CPU ms/frame | "
+          "SpotDetector | Triangulator | PoseDelta (callback CPU ms/frame) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for rate in (30, 60):
+        mon, p = load(os.path.join(out, "sim_%d.yaml" % rate)), load(os.path.join(out, "sim_%d_probe.yaml" % rate))
+        if not p:
+            print("| %d Hz | run failed (see sim_%d.log) |" % (rate, rate))
+            continue
+        print("| %d Hz | %s | %s | %s | %s | %s | %s | %s |" % (
+            rate, p.get("frames"), p.get("dropped"), latency_cells(p),
+            fmt(per_frame_ms(p, p.get("published"))), fmt(nodelet_ms(p, "spot_detector")),
+            fmt(nodelet_ms(p, "triangulator")), fmt(nodelet_ms(p, "pose_delta"))))
+        if mon:
+            print("|  | demo monitor: %s published, %s dropped, recall %s, pose %s mm / %s deg RMS | | | | | | | | |" % (
+                mon.get("frames_published"), mon.get("frames_dropped"), fmt(mon.get("recall"), "%.4f"),
+                fmt(mon.get("translation_rms_mm"), "%.3f"), fmt(mon.get("rotation_rms_deg"), "%.4f")))
+    print("\nThe manager's CPU includes the simulator's rendering (CameraDriver).\n")
+
+
+def replay_tables(out, frames):
+    r = {name: load(os.path.join(out, "replay_%s.yaml" % name)) for name in (
+        "side_by_side", "pipeline", "pipeline_notex", "fast_only", "baseline_only", "pipeline_30hz",
+        "pipeline_60hz")}
+    print("## Bag replay (%d frames, 1024 x 1024 bgr8, 10 Hz)\n" % frames)
+    base = per_frame_ms(r["baseline_only"], frames)
+    print("| manager | CPU ms/frame | of the baseline-only manager |")
+    print("|---|---|---|")
+    for name, what in (("pipeline", "pipeline (fast detector, Triangulator, PoseDelta with texture)"),
+                       ("pipeline_notex", "pipeline, PoseDelta texture off"),
+                       ("fast_only", "fast SpotDetector alone"),
+                       ("baseline_only", "the study's chain (baseline SpotDetector) alone")):
+        ms = per_frame_ms(r[name], frames)
+        print("| %s | %s | %s |" % (what, fmt(ms), fmt(100 * ms / base, "%.1f %%") if ms and base else "n/a"))
+    s = r["side_by_side"]
+    fast, study = nodelet_ms(s, "spot_detector"), nodelet_ms(s, "spot_detector_baseline")
+    print("\nSame manager, same frames (the study's chain loaded beside the pipeline), callback CPU per frame:\n")
+    print("| nodelet | ms/frame |")
+    print("|---|---|")
+    for name in NODELETS[1:]:
+        print("| %s | %s |" % (name, fmt(nodelet_ms(s, name))))
+    print("| manager total | %s |" % fmt(per_frame_ms(s, frames)))
+    if fast and study:
+        print("\nRatio study's chain / fast SpotDetector on the same frames: %.1fx" % (study / fast))
+    print("\nLatency from publication to pose_delta on the bag (pipeline):\n")
+    print("| replay rate | frames | dropped | median ms | p99 ms | p99/median |")
+    print("|---|---|---|---|---|---|")
+    for name, rate in (("pipeline", "10 Hz"), ("pipeline_30hz", "30 Hz"), ("pipeline_60hz", "60 Hz")):
+        p = r[name]
+        print("| %s | %s | %s | %s |" % (rate, p.get("frames"), p.get("dropped"), latency_cells(p)))
+
+
+def main():
+    out, bag = sys.argv[1], sys.argv[2]
+    with rosbag.Bag(bag) as b:
+        frames = b.get_message_count(["camera/image_raw", "/camera/image_raw"])
+    print("# scripts/benchmark\n")
+    sim_table(out)
+    replay_tables(out, frames)
+
+
+if __name__ == "__main__":
+    main()
