@@ -16,8 +16,10 @@ clock, so also on a replayed bag's clock). At shutdown it writes to ~out_file:
   published: camera_info messages seen (all frames while this node ran)
   frames: camera_info messages after the first pose_delta (earlier ones are
           the warm-up: the lazy subscriptions connecting)
-  pose_deltas, dropped: frames with no pose_delta within 1 s (those of the
-          last second not counted)
+  pose_deltas: frames with their pose_delta; latency_samples: those timed
+  dropped: frames with no pose_delta within 1 s (those of the
+          last second not counted); dropped_at_s: when they were published
+          (s after the first pose_delta; the first 50)
   latency_median_ms, latency_p99_ms: publication -> pose_delta
   nodelets: {<diagnostic name>: {callbacks: N, cpu_s: seconds, ms_per_callback}}
 
@@ -72,7 +74,7 @@ class Probe:
         self.cpu_last = None
         self.lock = threading.Lock()
         self.published = {}  # stamp -> wall time of the camera_info
-        self.latencies = []
+        self.poses = {}  # stamp -> wall time of the pose_delta
         self.first_pose = None
         self.infos = 0
         rospy.Subscriber("/diagnostics", DiagnosticArray, self.diagnostics_cb, queue_size=50)
@@ -102,23 +104,38 @@ class Probe:
         with self.lock:
             if self.first_pose is None:
                 self.first_pose = now
-            t = self.published.pop(msg.header.stamp.to_nsec(), None)
-            if t is not None and t >= self.first_pose:
-                self.latencies.append(1e3 * (now - t))
+            self.poses[msg.header.stamp.to_nsec()] = now
 
     def frame_figures(self):
+        """Pairs frames and pose_deltas by stamp, whichever callback ran
+        first (rospy runs each subscription on its own thread): a frame
+        without a pose_delta is dropped; the latency is taken where the
+        camera_info's callback ran first (else its time is not the
+        publication's)."""
         with self.lock:
             end = time.time()
             first = self.first_pose if self.first_pose is not None else end
-            lat = np.array(self.latencies)
-            # Still waiting: dropped unless published in the last second.
-            dropped = sum(1 for t in self.published.values() if first <= t < end - IN_FLIGHT_S)
-            counted = len(lat) + dropped
+            lat, dropped_at, delivered = [], [], 0
+            for stamp, t in self.published.items():
+                if t < first:
+                    continue  # warm-up
+                arrived = self.poses.get(stamp)
+                if arrived is None:
+                    if t < end - IN_FLIGHT_S:
+                        dropped_at.append(t - first)
+                    continue
+                delivered += 1
+                if arrived >= t:
+                    lat.append(1e3 * (arrived - t))
+            lat = np.array(lat)
+            dropped_at.sort()
         return {
             "published": self.infos,
-            "frames": counted,
-            "pose_deltas": int(len(lat)),
-            "dropped": int(dropped),
+            "frames": delivered + len(dropped_at),
+            "pose_deltas": delivered,
+            "latency_samples": int(len(lat)),
+            "dropped": len(dropped_at),
+            "dropped_at_s": [round(t, 3) for t in dropped_at[:50]],
             "latency_median_ms": float(np.median(lat)) if len(lat) else None,
             "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
         }
@@ -128,6 +145,8 @@ class Probe:
             if not status.name.endswith(": callback CPU"):
                 continue
             values = {kv.key: kv.value for kv in status.values}
+            if "callbacks" not in values:
+                continue  # the updater's first status ("Node starting up") has no values
             try:
                 self.nodelets[status.name[: -len(": callback CPU")]] = {
                     "callbacks": int(values["callbacks"]),
