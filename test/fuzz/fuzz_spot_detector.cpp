@@ -8,7 +8,9 @@
 // parameter bytes. The rest is the pixel data, repeated to fill the image (an
 // image built from few bytes is mostly flat, many bytes give noise and dots).
 // Both methods run on every image, the one picked by bit 0 with the
-// variant's parameters (run through sanitize() as the nodelet does). The
+// variant's parameters (run through sanitize() as the nodelet does), on the
+// whole image and in regions (SpotDetector::detectIn: regions from the
+// parameter bytes, then SpotSearchPlanner's plan after the frame). The
 // detector must return ok with finite centroids inside the image, or refuse
 // with a message; never crash, hang or throw.
 #include <cmath>
@@ -20,6 +22,7 @@
 #include <opencv2/core.hpp>
 
 #include "structured_light_stabilizer/spot_detector.h"
+#include "structured_light_stabilizer/spot_search_planner.h"
 
 namespace
 {
@@ -140,6 +143,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
     check(r, image);
     if (want_debug && r.ok)
       (void)drawSpotDebugImage(image, format, r.spots, debug);
+    // Tracking: regions from the parameter bytes, anywhere, even outside the
+    // image or empty, then the planner's own plan after this frame.
+    const std::vector<cv::Rect> regions = {
+        cv::Rect(params[0] - 64, params[1] - 64, params[2], params[3]),
+        cv::Rect(width / 2 - params[0] % 8, height / 2 - params[1] % 8, params[2] % 32 + 1, params[3] % 32 + 1)};
+    check(detector.detectIn(image, ambient, format, regions, want_debug ? &debug : nullptr, &timings), image);
+    SpotSearchPlanner planner;
+    planner.update(r);
+    check(detector.detectIn(image, ambient, format, planner.plan(image.size())), image);
   }
   return 0;
 }
