@@ -125,7 +125,9 @@ cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>
 {
   const int h = refinementHalf(), width = 2 * h + 1, stride = paddedWidth(width);
   const double inv_h = 1.0 / std::max(h, 1);
-  cv::Matx66d normal = cv::Matx66d::zeros();
+  // The upper triangle only (the matrix is symmetric), each entry summed in
+  // the same order as a full outer product would.
+  double sum[kParams][kParams] = {};
   *samples = 0.0;
   for (int dy = 0; dy < width; ++dy)
     for (int dx = 0; dx < width; ++dx)
@@ -135,9 +137,15 @@ cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>
         continue;
       *samples += 1.0;
       const double v = t.value[k];
-      const cv::Vec<double, kParams> j(t.gx[k], t.gy[k], -v, -1.0, -v * (dx - h) * inv_h, -v * (dy - h) * inv_h);
-      normal += j * j.t();
+      const double j[kParams] = {t.gx[k], t.gy[k], -v, -1.0, -v * (dx - h) * inv_h, -v * (dy - h) * inv_h};
+      for (int a = 0; a < kParams; ++a)
+        for (int b = a; b < kParams; ++b)
+          sum[a][b] += j[a] * j[b];
     }
+  cv::Matx66d normal;
+  for (int a = 0; a < kParams; ++a)
+    for (int b = a; b < kParams; ++b)
+      normal(a, b) = normal(b, a) = sum[a][b];
   return normal;
 }
 
