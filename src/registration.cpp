@@ -24,6 +24,9 @@ constexpr int kHuberIterations = 3;
 // Least robust scale of whitened texture residuals: only against degeneracy
 // (all residuals zero), far below any real scatter.
 constexpr double kMinWhitenedScale = 1e-3;
+// A point moved less than this (metres) since its foot on a surface was
+// searched keeps that foot within a solve (GeometryResiduals::footOf).
+constexpr double kFootReuseM = 2e-4;
 
 // Directions of the update in scaled coordinates (rotations times the scene
 // depth), one per column.
@@ -66,7 +69,9 @@ public:
       cols_(std::max(reference_surface.cols(), 1)),
       direction_weight_(current_surface_ ? 0.5 : 1.0),
       uv_forward_(current.size()),
-      uv_reverse_(reference.size())
+      uv_reverse_(reference.size()),
+      feet_forward_(current.size()),
+      feet_reverse_(reference.size())
   {
     for (size_t i = 0; i < current.size(); ++i)
       uv_forward_[i] = gridPoint(i);
@@ -119,9 +124,36 @@ private:
     bool reverse = false;  // a reference point against the current surface
   };
 
+  // Where a point's perpendicular foot was last searched from, and what was found.
+  struct Foot
+  {
+    Eigen::Vector3d from = Eigen::Vector3d::Constant(detail::kNaN);
+    Eigen::Vector3d foot;
+    Eigen::Vector3d normal;
+  };
+
   Eigen::Vector2d gridPoint(size_t beam) const
   {
     return Eigen::Vector2d(static_cast<double>(beam / cols_), static_cast<double>(beam % cols_));
+  }
+
+  // The foot of x on `surface` (point `index`), null when there is none. A
+  // point that moved less than kFootReuseM since its last search keeps that
+  // foot and normal: its residual is then the distance to the tangent plane
+  // there, which differs from the distance to the surface by the curvature
+  // times half the squared move (under a micrometre), and the search
+  // (several patch evaluations) dominates the cost of a solve.
+  const Foot* footOf(const BeamSurface& surface, const Eigen::Vector3d& x, size_t index, Eigen::Vector2d* uv,
+                     Foot* cached) const
+  {
+    if ((x - cached->from).squaredNorm() < kFootReuseM * kFootReuseM)
+      return cached;
+    cached->from = x;
+    if (surface.closestPoint(x, uv, &cached->foot, &cached->normal))
+      return cached;
+    *uv = gridPoint(index);
+    cached->from = Eigen::Vector3d::Constant(detail::kNaN);
+    return nullptr;
   }
 
   void linearize(const Eigen::Isometry3d& T)
@@ -136,12 +168,11 @@ private:
       if (!isUsablePoint(q))
         continue;
       const Eigen::Vector3d x = Tinv * q;
-      Eigen::Vector3d foot, n;
-      if (!reference_surface_.closestPoint(x, &uv_forward_[i], &foot, &n))
-      {
-        uv_forward_[i] = gridPoint(i);
+      const Foot* f = footOf(reference_surface_, x, i, &uv_forward_[i], &feet_forward_[i]);
+      if (f == nullptr)
         continue;
-      }
+      const Eigen::Vector3d& foot = f->foot;
+      const Eigen::Vector3d& n = f->normal;
       const Eigen::Vector3d m = R * n;
       Row row;
       row.J << -m.transpose(), m.cross(q).transpose();
@@ -161,12 +192,11 @@ private:
       if (!isUsablePoint(reference_[j]))
         continue;
       const Eigen::Vector3d y = T * reference_[j];
-      Eigen::Vector3d foot, n;
-      if (!current_surface_->closestPoint(y, &uv_reverse_[j], &foot, &n))
-      {
-        uv_reverse_[j] = gridPoint(j);
+      const Foot* f = footOf(*current_surface_, y, j, &uv_reverse_[j], &feet_reverse_[j]);
+      if (f == nullptr)
         continue;
-      }
+      const Eigen::Vector3d& foot = f->foot;
+      const Eigen::Vector3d& n = f->normal;
       Row row;
       row.J << n.transpose(), y.cross(n).transpose();
       row.r = n.dot(y - foot);
@@ -183,6 +213,7 @@ private:
   const size_t cols_;
   const double direction_weight_;
   std::vector<Eigen::Vector2d> uv_forward_, uv_reverse_;  // where each foot was found last
+  std::vector<Foot> feet_forward_, feet_reverse_;
   std::vector<Row> rows_;
   int forward_used_ = 0;
   double sigma_ = 0.0;
