@@ -1,6 +1,7 @@
 // TextureTracker's windows: the template of each feature on its pyramid
 // level, its information against the image noise, and the sub-pixel
 // refinement with a photometric model (texture_tracker.h).
+#include <array>
 #include <cmath>
 
 #include <Eigen/Cholesky>
@@ -32,6 +33,8 @@ constexpr double kMaxGain = 2.0;
 constexpr int kParams = 6;
 // A warp moving the window's corner by less than this (level pixels) is not applied.
 constexpr double kNegligibleWarpPx = 0.05;
+// Widest window warpTemplate() handles (texture_refinement_window_px is at most 61).
+constexpr int kMaxWindow = 128;
 
 // Inverse of a symmetric positive definite 6x6 matrix (Cholesky); false
 // when it is not positive definite. (Eigen's fixed-size LLT: inline, unlike
@@ -237,6 +240,8 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
                                   std::vector<float>* values, std::vector<float>* mask) const
 {
   const int h = refinementHalf(), width = 2 * h + 1, stride = paddedWidth(width);
+  if (width > kMaxWindow)
+    return false;
   const cv::Matx22d inverse = warp.inv();
   const cv::Matx22d d = inverse - cv::Matx22d::eye();
   // Below this at the window's corner (level pixels) the warp changes nothing that matters.
@@ -253,20 +258,37 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
   // The dots' mask moves by a fraction of a pixel: kept as it is.
   *mask = t.mask;
   const float i00 = static_cast<float>(inverse(0, 0)), i10 = static_cast<float>(inverse(1, 0));
-  const size_t row_step = image.step1();
+  const int row_step = static_cast<int>(image.step1());
+  const float* base = image.ptr<float>(0);
+  // Per row: the sample positions first (each from the row's start, no
+  // running sum, so that the loops vectorise), then their cells and
+  // weights, then the bilinear reads.
+  std::array<float, kMaxWindow> fx, fy;
+  std::array<int, kMaxWindow> at;
   for (int dy = -h; dy <= h; ++dy)
   {
     // The reference sample that lands at (dx, dy) of the current window.
-    float x = static_cast<float>(cx + inverse(0, 1) * dy - inverse(0, 0) * h);
-    float y = static_cast<float>(cy + inverse(1, 1) * dy - inverse(1, 0) * h);
-    float* out = &(*values)[static_cast<size_t>(dy + h) * stride];
-    for (int k = 0; k < width; ++k, x += i00, y += i10)
+    const float x = static_cast<float>(cx + inverse(0, 1) * dy - inverse(0, 0) * h);
+    const float y = static_cast<float>(cy + inverse(1, 1) * dy - inverse(1, 0) * h);
+    for (int k = 0; k < width; ++k)
     {
-      const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);  // non-negative: truncation is floor
-      const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
-      const float* r0 = image.ptr<float>(y0) + x0;
+      fx[k] = x + i00 * static_cast<float>(k);
+      fy[k] = y + i10 * static_cast<float>(k);
+    }
+    for (int k = 0; k < width; ++k)
+    {
+      const int x0 = static_cast<int>(fx[k]), y0 = static_cast<int>(fy[k]);  // non-negative: truncation is floor
+      fx[k] -= static_cast<float>(x0);
+      fy[k] -= static_cast<float>(y0);
+      at[k] = y0 * row_step + x0;
+    }
+    float* out = &(*values)[static_cast<size_t>(dy + h) * stride];
+    for (int k = 0; k < width; ++k)
+    {
+      const float* r0 = base + at[k];
       const float* r1 = r0 + row_step;
-      out[k] = (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
+      const float wx = fx[k], wy = fy[k];
+      out[k] = (1 - wy) * ((1 - wx) * r0[0] + wx * r0[1]) + wy * ((1 - wx) * r1[0] + wx * r1[1]);
     }
   }
   return true;
