@@ -232,6 +232,7 @@ private:
   std::vector<cv::Mat> frame_levels_;  // CV_32F refinement pyramid of the current ROI
   std::vector<cv::Mat> frame_pyramid_;  // LK pyramid, built on the first pyramidal track of a frame
   cv::Mat scratch_;                     // the tracked channel, 8-bit
+  std::vector<uint16_t> row_sums_;      // one row of a pyrDown step's vertical sums
   bool frame_ok_ = false;               // setFrame() succeeded for the current frame
 };
 
