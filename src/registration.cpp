@@ -92,9 +92,7 @@ public:
     double scale[2];
     for (int d = 0; d < 2; ++d)
       scale[d] = robustScale(magnitudes[d], config.min_geometry_sigma_m);
-    std::vector<double> all = std::move(magnitudes[0]);
-    all.insert(all.end(), magnitudes[1].begin(), magnitudes[1].end());
-    sigma_ = robustScale(std::move(all), config.min_geometry_sigma_m);
+    sigma_floor_ = config.min_geometry_sigma_m;
     const Matrix6d before = system->H;
     sum_r2_ = 0.0;
     for (const Row& row : rows_)
@@ -112,7 +110,16 @@ public:
 
   bool empty() const { return rows_.empty(); }
   int pointsUsed() const { return forward_used_; }
-  double sigma() const { return sigma_; }
+  // Robust scale of all the residuals of the last linearisation (for the
+  // report: computed once, at the solution).
+  double sigma() const
+  {
+    std::vector<double> all;
+    all.reserve(rows_.size());
+    for (const Row& row : rows_)
+      all.push_back(std::abs(row.r));
+    return robustScale(std::move(all), sigma_floor_);
+  }
   double rms() const { return rows_.empty() ? 0.0 : std::sqrt(sum_r2_ / static_cast<double>(rows_.size())); }
 
 private:
@@ -216,7 +223,7 @@ private:
   std::vector<Foot> feet_forward_, feet_reverse_;
   std::vector<Row> rows_;
   int forward_used_ = 0;
-  double sigma_ = 0.0;
+  double sigma_floor_ = 0.0;
   double sum_r2_ = 0.0;
 };
 
@@ -259,18 +266,16 @@ public:
   void addTo(const Eigen::Isometry3d& T, const PoseDeltaParams& config, int iteration, NormalEquations* system)
   {
     linearize(T);
-    std::vector<double> magnitudes, pixels;
+    std::vector<double> magnitudes;
+    magnitudes.reserve(2 * rows_.size());
     for (const Row& row : rows_)
     {
       magnitudes.push_back(std::abs(row.r.x()));
       magnitudes.push_back(std::abs(row.r.y()));
-      pixels.push_back(std::abs(row.r_px.x()));
-      pixels.push_back(std::abs(row.r_px.y()));
     }
     // Whitened residuals are in units of their measured sigma: their scale
     // says how well those sigmas hold (no floor needed beyond degeneracy).
     scale_ = robustScale(std::move(magnitudes), whitened_ ? kMinWhitenedScale : config.min_texture_sigma_px);
-    sigma_ = robustScale(std::move(pixels), 0.0);
     const Matrix6d before = system->H;
     eliminated_.clear();
     used_ = 0;
@@ -296,7 +301,19 @@ public:
   void restart() { depth_ = depth0_; }
 
   int used() const { return used_; }
-  double sigma() const { return sigma_; }
+  // Robust scale of the last linearisation's residuals in pixels (for the
+  // report: computed once, at the solution).
+  double sigma() const
+  {
+    std::vector<double> pixels;
+    pixels.reserve(2 * rows_.size());
+    for (const Row& row : rows_)
+    {
+      pixels.push_back(std::abs(row.r_px.x()));
+      pixels.push_back(std::abs(row.r_px.y()));
+    }
+    return robustScale(std::move(pixels), 0.0);
+  }
 
 private:
   struct Row
@@ -393,7 +410,6 @@ private:
   bool whitened_ = false;                     // some feature has a measured covariance
   int used_ = 0;
   double scale_ = 0.0;  // robust scale of the (whitened) residuals
-  double sigma_ = 0.0;  // robust scale in pixels, for the report
 };
 
 // The weak prior (information) that keeps unobservable directions at the initial guess.
