@@ -63,6 +63,7 @@ void TextureTracker::clear()
   frame_ok_ = false;
   frame_levels_.clear();
   frame_pyramid_.clear();
+  frame_pyramid_ready_ = false;
   reference_pyramid_.clear();
   reference_levels_.clear();
   noise_map_.release();
@@ -386,7 +387,7 @@ void TextureTracker::retain(const std::vector<uint8_t>& keep)
 bool TextureTracker::setFrame(const cv::Mat& image, int channel)
 {
   // The buffers are kept from frame to frame (no allocation once running).
-  frame_pyramid_.clear();
+  frame_pyramid_ready_ = false;
   frame_ok_ = false;
   if (features_.empty() || image.empty() || image.size() != image_size_)
     return false;
@@ -441,9 +442,10 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
     return 0;
   const cv::Size win(config_.window_px, config_.window_px);
   const int levels = half ? std::max(config_.pyramid_levels - 1, 0) : config_.pyramid_levels;
-  if (frame_pyramid_.empty())
+  if (!frame_pyramid_ready_)
   {
     cv::buildOpticalFlowPyramid(frame_, frame_pyramid_, win, levels, false);
+    frame_pyramid_ready_ = true;
   }
   std::vector<uchar> status;
   std::vector<float> err;

@@ -230,7 +230,8 @@ private:
   int first_level_ = 0;                // the finest level of any feature
   cv::Mat frame_;                      // the current frame's ROI, tracked channel (half resolution with the refinement)
   std::vector<cv::Mat> frame_levels_;  // CV_32F refinement pyramid of the current ROI
-  std::vector<cv::Mat> frame_pyramid_;  // LK pyramid, built on the first pyramidal track of a frame
+  std::vector<cv::Mat> frame_pyramid_;  // LK pyramid (buffers kept from frame to frame)
+  bool frame_pyramid_ready_ = false;    // built for the current frame (on its first pyramidal track)
   cv::Mat scratch_;                     // the tracked channel, 8-bit
   std::vector<uint16_t> row_sums_;      // one row of a pyrDown step's vertical sums
   bool frame_ok_ = false;               // setFrame() succeeded for the current frame
