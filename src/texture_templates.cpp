@@ -124,23 +124,29 @@ bool TextureTracker::maskDots(const std::vector<cv::Point2f>& dots, const cv::Po
   return any;
 }
 
-cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>& mask, double* samples) const
+namespace
 {
-  const int h = refinementHalf(), width = 2 * h + 1, stride = paddedWidth(width);
+// The upper triangle of the sum of j j^T over the window samples k where
+// use(k) holds (the matrix is symmetric), j the model's Jacobian at k; each
+// entry summed in the same order as a full outer product would. *count gets
+// the number of those samples.
+template <typename Use>
+cv::Matx66d outerSum(const std::vector<float>& value, const std::vector<float>& gx, const std::vector<float>& gy, int h,
+                     int stride, Use use, double* count)
+{
+  const int width = 2 * h + 1;
   const double inv_h = 1.0 / std::max(h, 1);
-  // The upper triangle only (the matrix is symmetric), each entry summed in
-  // the same order as a full outer product would.
   double sum[kParams][kParams] = {};
-  *samples = 0.0;
+  *count = 0.0;
   for (int dy = 0; dy < width; ++dy)
     for (int dx = 0; dx < width; ++dx)
     {
       const size_t k = static_cast<size_t>(dy) * stride + dx;
-      if (!(mask[k] > 0.0f))
+      if (!use(k))
         continue;
-      *samples += 1.0;
-      const double v = t.value[k];
-      const double j[kParams] = {t.gx[k], t.gy[k], -v, -1.0, -v * (dx - h) * inv_h, -v * (dy - h) * inv_h};
+      *count += 1.0;
+      const double v = value[k];
+      const double j[kParams] = {gx[k], gy[k], -v, -1.0, -v * (dx - h) * inv_h, -v * (dy - h) * inv_h};
       for (int a = 0; a < kParams; ++a)
         for (int b = a; b < kParams; ++b)
           sum[a][b] += j[a] * j[b];
@@ -150,6 +156,27 @@ cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>
     for (int b = a; b < kParams; ++b)
       normal(a, b) = normal(b, a) = sum[a][b];
   return normal;
+}
+}  // namespace
+
+cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>& mask, double* samples) const
+{
+  const int h = refinementHalf();
+  return outerSum(
+      t.value, t.gx, t.gy, h, paddedWidth(2 * h + 1), [&](size_t k) { return mask[k] > 0.0f; }, samples);
+}
+
+// `mask` is the template's own with some samples zeroed (this frame's dots):
+// its normal matrix is the template's less what those samples added.
+cv::Matx66d TextureTracker::maskedNormal(const Template& t, const std::vector<float>& mask, double* samples) const
+{
+  const int h = refinementHalf();
+  double removed = 0.0;
+  const cv::Matx66d less = outerSum(
+      t.value, t.gx, t.gy, h, paddedWidth(2 * h + 1), [&](size_t k) { return t.mask[k] > 0.0f && !(mask[k] > 0.0f); },
+      &removed);
+  *samples = t.samples - removed;
+  return t.normal - less;
 }
 
 bool TextureTracker::buildTemplate(const cv::Point2f& position, int level, const std::vector<cv::Point2f>& dots,
@@ -184,7 +211,8 @@ bool TextureTracker::buildTemplate(const cv::Point2f& position, int level, const
   }
   // The reference's own dots are not rock texture either.
   maskDots(dots, position, level, &t->mask);
-  const cv::Matx66d normal = normalOf(*t, t->mask, &t->samples);
+  t->normal = normalOf(*t, t->mask, &t->samples);
+  const cv::Matx66d& normal = t->normal;
   const bool invertible = invertSpd(normal, &t->inverse_normal);
   t->noise_sigma0 = noiseAt(cv::Point2f(position.x - roi_.x, position.y - roi_.y));
   t->gradient_noise_var = t->noise_sigma0 * t->noise_sigma0 * levelNoise(level).gradient_factor;
@@ -425,7 +453,7 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
     double samples = t.samples;
     if (masked)
     {
-      const cv::Matx66d normal = normalOf(t, local_mask, &samples);
+      const cv::Matx66d normal = maskedNormal(t, local_mask, &samples);
       if (!invertSpd(normal, &inverse_normal) || !signalInverse(normal, samples, t.gradient_noise_var, &inverse_signal))
         continue;
       unit_covariance = shiftCovariance(inverse_signal, level);

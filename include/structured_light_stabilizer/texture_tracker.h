@@ -137,6 +137,7 @@ private:
   struct Template
   {
     std::vector<float> value, gx, gy, mask;
+    cv::Matx66d normal;  // over the template's own mask
     cv::Matx66d inverse_normal;
     cv::Matx66d inverse_signal;       // with the template noise's share taken out (signalInverse)
     double samples = 0.0;             // window samples with weight
@@ -183,6 +184,9 @@ private:
                 std::vector<float>* mask) const;
   // Normal matrix of the model over the window samples with weight; *samples gets their number.
   cv::Matx66d normalOf(const Template& t, const std::vector<float>& mask, double* samples) const;
+  // The same for a mask that is the template's own with some samples zeroed
+  // (from the template's normal matrix, less those samples).
+  cv::Matx66d maskedNormal(const Template& t, const std::vector<float>& mask, double* samples) const;
   // The template's values (and mask) seen through the linear map `warp`,
   // sampled from the reference level: *values, *mask. False when the warp is
   // negligible (the template as it is will do).
