@@ -27,6 +27,8 @@ constexpr double kMinWhitenedScale = 1e-3;
 // A point moved less than this (metres) since its foot on a surface was
 // searched keeps that foot within a solve (GeometryResiduals::footOf).
 constexpr double kFootReuseM = 2e-4;
+// Feet within this (grid cells) of the border of the map are not reused.
+constexpr double kFootBorderMargin = 0.05;
 
 // Directions of the update in scaled coordinates (rotations times the scene
 // depth), one per column.
@@ -149,7 +151,9 @@ private:
   // foot and normal: its residual is then the distance to the tangent plane
   // there, which differs from the distance to the surface by the curvature
   // times half the squared move (under a micrometre), and the search
-  // (several patch evaluations) dominates the cost of a solve.
+  // (several patch evaluations) dominates the cost of a solve. A foot at the
+  // border of the map is searched again every time: whether the point is
+  // still on the mapped rock is the search's to say.
   const Foot* footOf(const BeamSurface& surface, const Eigen::Vector3d& x, size_t index, Eigen::Vector2d* uv,
                      Foot* cached) const
   {
@@ -157,7 +161,12 @@ private:
       return cached;
     cached->from = x;
     if (surface.closestPoint(x, uv, &cached->foot, &cached->normal))
+    {
+      const double m = kFootBorderMargin;
+      if (!(uv->x() > m && uv->y() > m && uv->x() < surface.rows() - 1 - m && uv->y() < surface.cols() - 1 - m))
+        cached->from = Eigen::Vector3d::Constant(detail::kNaN);
       return cached;
+    }
     *uv = gridPoint(index);
     cached->from = Eigen::Vector3d::Constant(detail::kNaN);
     return nullptr;
