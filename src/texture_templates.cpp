@@ -264,17 +264,41 @@ cv::Matx22d TextureTracker::shiftCovariance(const cv::Matx66d& inverse_signal, i
   return cv::Matx22d(inverse_signal(0, 0), inverse_signal(0, 1), inverse_signal(1, 0), inverse_signal(1, 1)) * scale;
 }
 
-bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& warp,
-                                  std::vector<float>* values, std::vector<float>* mask) const
+namespace
+{
+// The largest move (level pixels) of the window's corners through the linear map d.
+double cornerMove(const cv::Matx22d& d, int h)
+{
+  return (std::abs(d(0, 0)) + std::abs(d(0, 1)) + std::abs(d(1, 0)) + std::abs(d(1, 1))) * h;
+}
+}  // namespace
+
+const std::vector<float>* TextureTracker::warped(size_t i, const cv::Matx22d& warp) const
+{
+  const int h = refinementHalf();
+  const cv::Matx22d inverse = warp.inv();
+  // Below this at the window's corner (level pixels) the warp changes nothing that matters.
+  if (!(cornerMove(inverse - cv::Matx22d::eye(), h) > kNegligibleWarpPx))
+    return nullptr;  // also when the warp is not finite
+  // Nor does a change of the warp by as little since it was last applied:
+  // the window keeps its warped template from frame to frame while the
+  // rig's roll, scale and tilt barely change.
+  if (warp_cache_.size() != templates_.size())
+    warp_cache_.assign(templates_.size(), WarpCache());
+  WarpCache& cache = warp_cache_[i];
+  if (cache.valid && cornerMove(inverse - cache.inverse, h) <= kNegligibleWarpPx)
+    return &cache.values;
+  cache.inverse = inverse;
+  cache.valid = warpTemplate(templates_[i], features_[i], levels_[i], inverse, &cache.values);
+  return cache.valid ? &cache.values : nullptr;
+}
+
+bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& inverse,
+                                  std::vector<float>* values) const
 {
   const int h = refinementHalf(), width = 2 * h + 1, stride = paddedWidth(width);
   if (width > kMaxWindow)
     return false;
-  const cv::Matx22d inverse = warp.inv();
-  const cv::Matx22d d = inverse - cv::Matx22d::eye();
-  // Below this at the window's corner (level pixels) the warp changes nothing that matters.
-  if (!((std::abs(d(0, 0)) + std::abs(d(0, 1)) + std::abs(d(1, 0)) + std::abs(d(1, 1))) * h > kNegligibleWarpPx))
-    return false;  // also when the warp is not finite
   const cv::Mat& image = reference_levels_[static_cast<size_t>(level)];
   const double cx = toLevel(position.x - roi_.x, level), cy = toLevel(position.y - roi_.y, level);
   // The window's corners through the warp must stay inside the level.
@@ -283,8 +307,6 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
   if (cx - reach < 0.0 || cy - reach < 0.0 || cx + reach + 1.0 >= image.cols || cy + reach + 1.0 >= image.rows)
     return false;
   values->assign(t.value.size(), 0.0f);
-  // The dots' mask moves by a fraction of a pixel: kept as it is.
-  *mask = t.mask;
   const float i00 = static_cast<float>(inverse(0, 0)), i10 = static_cast<float>(inverse(1, 0));
   const int row_step = static_cast<int>(image.step1());
   const float* base = image.ptr<float>(0);
@@ -434,7 +456,7 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
   if (!frame_ok_ || predicted.size() != n || templates_.size() != n)
     return 0;
   const cv::Point2f offset(static_cast<float>(roi_.x), static_cast<float>(roi_.y));
-  std::vector<float> local_mask, warped_values, warped_mask;
+  std::vector<float> local_mask;
   int good = 0;
   for (size_t i = 0; i < n; ++i)
   {
@@ -443,10 +465,10 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
     cv::Point2f p = predicted[i] - offset, full;
     if (!t.ok || !std::isfinite(p.x) || !std::isfinite(p.y) || !accept(p, level, dots, &full))
       continue;  // a feature centred on a dot has lost its own texture
-    // Through the predicted warp; this frame's dots in the window get no weight either.
-    const bool warped =
-        warps && warps->size() == n && warpTemplate(t, features_[i], level, (*warps)[i], &warped_values, &warped_mask);
-    local_mask = warped ? warped_mask : t.mask;
+    // Through the predicted warp (the dots' mask moves by a fraction of a
+    // pixel: kept as it is); this frame's dots in the window get no weight either.
+    const std::vector<float>* values = warps && warps->size() == n ? warped(i, (*warps)[i]) : nullptr;
+    local_mask = t.mask;
     const bool masked = maskDots(dots, predicted[i], level, &local_mask);
     cv::Matx66d inverse_normal = t.inverse_normal, inverse_signal = t.inverse_signal;
     cv::Matx22d unit_covariance = t.shift_covariance;
@@ -460,8 +482,8 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
     }
     cv::Point2d q(toLevel(p.x, level), toLevel(p.y, level));
     double residual_ss = 0.0;
-    if (!refine(t, warped ? warped_values : t.value, frame_levels_[static_cast<size_t>(level)],
-                masked || warped ? local_mask : t.mask, inverse_normal, inverse_signal, &q, &residual_ss))
+    if (!refine(t, values ? *values : t.value, frame_levels_[static_cast<size_t>(level)], masked ? local_mask : t.mask,
+                inverse_normal, inverse_signal, &q, &residual_ss))
       continue;
     const double residual_var = residual_ss / std::max(1.0, samples - kParams);
     const cv::Matx22d cov = unit_covariance * residual_var;

@@ -64,6 +64,7 @@ void TextureTracker::clear()
   frame_levels_.clear();
   frame_pyramid_.clear();
   frame_pyramid_ready_ = false;
+  warp_cache_.clear();
   reference_pyramid_.clear();
   reference_levels_.clear();
   noise_map_.release();
@@ -380,6 +381,7 @@ void TextureTracker::retain(const std::vector<uint8_t>& keep)
   features_.swap(kept);
   levels_.swap(kept_levels);
   templates_.swap(kept_templates);
+  warp_cache_.clear();
   if (features_.empty())
     clear();
 }

@@ -187,11 +187,16 @@ private:
   // The same for a mask that is the template's own with some samples zeroed
   // (from the template's normal matrix, less those samples).
   cv::Matx66d maskedNormal(const Template& t, const std::vector<float>& mask, double* samples) const;
-  // The template's values (and mask) seen through the linear map `warp`,
-  // sampled from the reference level: *values, *mask. False when the warp is
-  // negligible (the template as it is will do).
-  bool warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& warp,
-                    std::vector<float>* values, std::vector<float>* mask) const;
+  // Feature i's template values seen through the linear map `warp` (null:
+  // the template as it is will do, the warp being negligible or leaving the
+  // level), from the cache while the warp has not changed by more than a
+  // negligible amount since they were computed.
+  const std::vector<float>* warped(size_t i, const cv::Matx22d& warp) const;
+  // The template's values seen through the linear map whose inverse is
+  // `inverse`, sampled from the reference level: *values. False when the
+  // warped window leaves the level.
+  bool warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& inverse,
+                    std::vector<float>* values) const;
   // Refines *q (level-`level` ROI coordinates) for template t in `image`
   // (CV_32F) with the window weights `mask`; false when the window leaves
   // the image, the result jumps or the fitted gain says the window is not
@@ -239,6 +244,14 @@ private:
   cv::Mat scratch_;                     // the tracked channel, 8-bit
   std::vector<uint16_t> row_sums_;      // one row of a pyrDown step's vertical sums
   bool frame_ok_ = false;               // setFrame() succeeded for the current frame
+  // Per feature: its last warped template and the inverse warp it was made with.
+  struct WarpCache
+  {
+    cv::Matx22d inverse;
+    std::vector<float> values;
+    bool valid = false;
+  };
+  mutable std::vector<WarpCache> warp_cache_;
 };
 
 }  // namespace structured_light_stabilizer
