@@ -24,6 +24,11 @@ constexpr int kHuberIterations = 3;
 // Least robust scale of whitened texture residuals: only against degeneracy
 // (all residuals zero), far below any real scatter.
 constexpr double kMinWhitenedScale = 1e-3;
+// A point moved less than this (metres) since its foot on a surface was
+// searched keeps that foot within a solve (GeometryResiduals::footOf).
+constexpr double kFootReuseM = 2e-4;
+// Feet within this (grid cells) of the border of the map are not reused.
+constexpr double kFootBorderMargin = 0.05;
 
 // Directions of the update in scaled coordinates (rotations times the scene
 // depth), one per column.
@@ -66,7 +71,9 @@ public:
       cols_(std::max(reference_surface.cols(), 1)),
       direction_weight_(current_surface_ ? 0.5 : 1.0),
       uv_forward_(current.size()),
-      uv_reverse_(reference.size())
+      uv_reverse_(reference.size()),
+      feet_forward_(current.size()),
+      feet_reverse_(reference.size())
   {
     for (size_t i = 0; i < current.size(); ++i)
       uv_forward_[i] = gridPoint(i);
@@ -87,9 +94,7 @@ public:
     double scale[2];
     for (int d = 0; d < 2; ++d)
       scale[d] = robustScale(magnitudes[d], config.min_geometry_sigma_m);
-    std::vector<double> all = std::move(magnitudes[0]);
-    all.insert(all.end(), magnitudes[1].begin(), magnitudes[1].end());
-    sigma_ = robustScale(std::move(all), config.min_geometry_sigma_m);
+    sigma_floor_ = config.min_geometry_sigma_m;
     const Matrix6d before = system->H;
     sum_r2_ = 0.0;
     for (const Row& row : rows_)
@@ -107,7 +112,16 @@ public:
 
   bool empty() const { return rows_.empty(); }
   int pointsUsed() const { return forward_used_; }
-  double sigma() const { return sigma_; }
+  // Robust scale of all the residuals of the last linearisation (for the
+  // report: computed once, at the solution).
+  double sigma() const
+  {
+    std::vector<double> all;
+    all.reserve(rows_.size());
+    for (const Row& row : rows_)
+      all.push_back(std::abs(row.r));
+    return robustScale(std::move(all), sigma_floor_);
+  }
   double rms() const { return rows_.empty() ? 0.0 : std::sqrt(sum_r2_ / static_cast<double>(rows_.size())); }
 
 private:
@@ -119,9 +133,43 @@ private:
     bool reverse = false;  // a reference point against the current surface
   };
 
+  // Where a point's perpendicular foot was last searched from, and what was found.
+  struct Foot
+  {
+    Eigen::Vector3d from = Eigen::Vector3d::Constant(detail::kNaN);
+    Eigen::Vector3d foot;
+    Eigen::Vector3d normal;
+  };
+
   Eigen::Vector2d gridPoint(size_t beam) const
   {
     return Eigen::Vector2d(static_cast<double>(beam / cols_), static_cast<double>(beam % cols_));
+  }
+
+  // The foot of x on `surface` (point `index`), null when there is none. A
+  // point that moved less than kFootReuseM since its last search keeps that
+  // foot and normal: its residual is then the distance to the tangent plane
+  // there, which differs from the distance to the surface by the curvature
+  // times half the squared move (under a micrometre), and the search
+  // (several patch evaluations) dominates the cost of a solve. A foot at the
+  // border of the map is searched again every time: whether the point is
+  // still on the mapped rock is the search's to say.
+  const Foot* footOf(const BeamSurface& surface, const Eigen::Vector3d& x, size_t index, Eigen::Vector2d* uv,
+                     Foot* cached) const
+  {
+    if ((x - cached->from).squaredNorm() < kFootReuseM * kFootReuseM)
+      return cached;
+    cached->from = x;
+    if (surface.closestPoint(x, uv, &cached->foot, &cached->normal))
+    {
+      const double m = kFootBorderMargin;
+      if (!(uv->x() > m && uv->y() > m && uv->x() < surface.rows() - 1 - m && uv->y() < surface.cols() - 1 - m))
+        cached->from = Eigen::Vector3d::Constant(detail::kNaN);
+      return cached;
+    }
+    *uv = gridPoint(index);
+    cached->from = Eigen::Vector3d::Constant(detail::kNaN);
+    return nullptr;
   }
 
   void linearize(const Eigen::Isometry3d& T)
@@ -136,12 +184,11 @@ private:
       if (!isUsablePoint(q))
         continue;
       const Eigen::Vector3d x = Tinv * q;
-      Eigen::Vector3d foot, n;
-      if (!reference_surface_.closestPoint(x, &uv_forward_[i], &foot, &n))
-      {
-        uv_forward_[i] = gridPoint(i);
+      const Foot* f = footOf(reference_surface_, x, i, &uv_forward_[i], &feet_forward_[i]);
+      if (f == nullptr)
         continue;
-      }
+      const Eigen::Vector3d& foot = f->foot;
+      const Eigen::Vector3d& n = f->normal;
       const Eigen::Vector3d m = R * n;
       Row row;
       row.J << -m.transpose(), m.cross(q).transpose();
@@ -161,12 +208,11 @@ private:
       if (!isUsablePoint(reference_[j]))
         continue;
       const Eigen::Vector3d y = T * reference_[j];
-      Eigen::Vector3d foot, n;
-      if (!current_surface_->closestPoint(y, &uv_reverse_[j], &foot, &n))
-      {
-        uv_reverse_[j] = gridPoint(j);
+      const Foot* f = footOf(*current_surface_, y, j, &uv_reverse_[j], &feet_reverse_[j]);
+      if (f == nullptr)
         continue;
-      }
+      const Eigen::Vector3d& foot = f->foot;
+      const Eigen::Vector3d& n = f->normal;
       Row row;
       row.J << n.transpose(), y.cross(n).transpose();
       row.r = n.dot(y - foot);
@@ -183,9 +229,10 @@ private:
   const size_t cols_;
   const double direction_weight_;
   std::vector<Eigen::Vector2d> uv_forward_, uv_reverse_;  // where each foot was found last
+  std::vector<Foot> feet_forward_, feet_reverse_;
   std::vector<Row> rows_;
   int forward_used_ = 0;
-  double sigma_ = 0.0;
+  double sigma_floor_ = 0.0;
   double sum_r2_ = 0.0;
 };
 
@@ -228,18 +275,16 @@ public:
   void addTo(const Eigen::Isometry3d& T, const PoseDeltaParams& config, int iteration, NormalEquations* system)
   {
     linearize(T);
-    std::vector<double> magnitudes, pixels;
+    std::vector<double> magnitudes;
+    magnitudes.reserve(2 * rows_.size());
     for (const Row& row : rows_)
     {
       magnitudes.push_back(std::abs(row.r.x()));
       magnitudes.push_back(std::abs(row.r.y()));
-      pixels.push_back(std::abs(row.r_px.x()));
-      pixels.push_back(std::abs(row.r_px.y()));
     }
     // Whitened residuals are in units of their measured sigma: their scale
     // says how well those sigmas hold (no floor needed beyond degeneracy).
     scale_ = robustScale(std::move(magnitudes), whitened_ ? kMinWhitenedScale : config.min_texture_sigma_px);
-    sigma_ = robustScale(std::move(pixels), 0.0);
     const Matrix6d before = system->H;
     eliminated_.clear();
     used_ = 0;
@@ -265,7 +310,19 @@ public:
   void restart() { depth_ = depth0_; }
 
   int used() const { return used_; }
-  double sigma() const { return sigma_; }
+  // Robust scale of the last linearisation's residuals in pixels (for the
+  // report: computed once, at the solution).
+  double sigma() const
+  {
+    std::vector<double> pixels;
+    pixels.reserve(2 * rows_.size());
+    for (const Row& row : rows_)
+    {
+      pixels.push_back(std::abs(row.r_px.x()));
+      pixels.push_back(std::abs(row.r_px.y()));
+    }
+    return robustScale(std::move(pixels), 0.0);
+  }
 
 private:
   struct Row
@@ -362,7 +419,6 @@ private:
   bool whitened_ = false;                     // some feature has a measured covariance
   int used_ = 0;
   double scale_ = 0.0;  // robust scale of the (whitened) residuals
-  double sigma_ = 0.0;  // robust scale in pixels, for the report
 };
 
 // The weak prior (information) that keeps unobservable directions at the initial guess.

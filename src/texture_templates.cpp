@@ -1,6 +1,7 @@
 // TextureTracker's windows: the template of each feature on its pyramid
 // level, its information against the image noise, and the sub-pixel
 // refinement with a photometric model (texture_tracker.h).
+#include <array>
 #include <cmath>
 
 #include <Eigen/Cholesky>
@@ -32,6 +33,8 @@ constexpr double kMaxGain = 2.0;
 constexpr int kParams = 6;
 // A warp moving the window's corner by less than this (level pixels) is not applied.
 constexpr double kNegligibleWarpPx = 0.05;
+// Widest window warpTemplate() handles (texture_refinement_window_px is at most 61).
+constexpr int kMaxWindow = 128;
 
 // Inverse of a symmetric positive definite 6x6 matrix (Cholesky); false
 // when it is not positive definite. (Eigen's fixed-size LLT: inline, unlike
@@ -121,24 +124,59 @@ bool TextureTracker::maskDots(const std::vector<cv::Point2f>& dots, const cv::Po
   return any;
 }
 
-cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>& mask, double* samples) const
+namespace
 {
-  const int h = refinementHalf(), width = 2 * h + 1, stride = paddedWidth(width);
+// The upper triangle of the sum of j j^T over the window samples k where
+// use(k) holds (the matrix is symmetric), j the model's Jacobian at k; each
+// entry summed in the same order as a full outer product would. *count gets
+// the number of those samples.
+template <typename Use>
+cv::Matx66d outerSum(const std::vector<float>& value, const std::vector<float>& gx, const std::vector<float>& gy, int h,
+                     int stride, Use use, double* count)
+{
+  const int width = 2 * h + 1;
   const double inv_h = 1.0 / std::max(h, 1);
-  cv::Matx66d normal = cv::Matx66d::zeros();
-  *samples = 0.0;
+  double sum[kParams][kParams] = {};
+  *count = 0.0;
   for (int dy = 0; dy < width; ++dy)
     for (int dx = 0; dx < width; ++dx)
     {
       const size_t k = static_cast<size_t>(dy) * stride + dx;
-      if (!(mask[k] > 0.0f))
+      if (!use(k))
         continue;
-      *samples += 1.0;
-      const double v = t.value[k];
-      const cv::Vec<double, kParams> j(t.gx[k], t.gy[k], -v, -1.0, -v * (dx - h) * inv_h, -v * (dy - h) * inv_h);
-      normal += j * j.t();
+      *count += 1.0;
+      const double v = value[k];
+      const double j[kParams] = {gx[k], gy[k], -v, -1.0, -v * (dx - h) * inv_h, -v * (dy - h) * inv_h};
+      for (int a = 0; a < kParams; ++a)
+        for (int b = a; b < kParams; ++b)
+          sum[a][b] += j[a] * j[b];
     }
+  cv::Matx66d normal;
+  for (int a = 0; a < kParams; ++a)
+    for (int b = a; b < kParams; ++b)
+      normal(a, b) = normal(b, a) = sum[a][b];
   return normal;
+}
+}  // namespace
+
+cv::Matx66d TextureTracker::normalOf(const Template& t, const std::vector<float>& mask, double* samples) const
+{
+  const int h = refinementHalf();
+  return outerSum(
+      t.value, t.gx, t.gy, h, paddedWidth(2 * h + 1), [&](size_t k) { return mask[k] > 0.0f; }, samples);
+}
+
+// `mask` is the template's own with some samples zeroed (this frame's dots):
+// its normal matrix is the template's less what those samples added.
+cv::Matx66d TextureTracker::maskedNormal(const Template& t, const std::vector<float>& mask, double* samples) const
+{
+  const int h = refinementHalf();
+  double removed = 0.0;
+  const cv::Matx66d less = outerSum(
+      t.value, t.gx, t.gy, h, paddedWidth(2 * h + 1), [&](size_t k) { return t.mask[k] > 0.0f && !(mask[k] > 0.0f); },
+      &removed);
+  *samples = t.samples - removed;
+  return t.normal - less;
 }
 
 bool TextureTracker::buildTemplate(const cv::Point2f& position, int level, const std::vector<cv::Point2f>& dots,
@@ -173,7 +211,8 @@ bool TextureTracker::buildTemplate(const cv::Point2f& position, int level, const
   }
   // The reference's own dots are not rock texture either.
   maskDots(dots, position, level, &t->mask);
-  const cv::Matx66d normal = normalOf(*t, t->mask, &t->samples);
+  t->normal = normalOf(*t, t->mask, &t->samples);
+  const cv::Matx66d& normal = t->normal;
   const bool invertible = invertSpd(normal, &t->inverse_normal);
   t->noise_sigma0 = noiseAt(cv::Point2f(position.x - roi_.x, position.y - roi_.y));
   t->gradient_noise_var = t->noise_sigma0 * t->noise_sigma0 * levelNoise(level).gradient_factor;
@@ -225,15 +264,41 @@ cv::Matx22d TextureTracker::shiftCovariance(const cv::Matx66d& inverse_signal, i
   return cv::Matx22d(inverse_signal(0, 0), inverse_signal(0, 1), inverse_signal(1, 0), inverse_signal(1, 1)) * scale;
 }
 
-bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& warp,
-                                  std::vector<float>* values, std::vector<float>* mask) const
+namespace
+{
+// The largest move (level pixels) of the window's corners through the linear map d.
+double cornerMove(const cv::Matx22d& d, int h)
+{
+  return (std::abs(d(0, 0)) + std::abs(d(0, 1)) + std::abs(d(1, 0)) + std::abs(d(1, 1))) * h;
+}
+}  // namespace
+
+const std::vector<float>* TextureTracker::warped(size_t i, const cv::Matx22d& warp) const
+{
+  const int h = refinementHalf();
+  const cv::Matx22d inverse = warp.inv();
+  // Below this at the window's corner (level pixels) the warp changes nothing that matters.
+  if (!(cornerMove(inverse - cv::Matx22d::eye(), h) > kNegligibleWarpPx))
+    return nullptr;  // also when the warp is not finite
+  // Nor does a change of the warp by as little since it was last applied:
+  // the window keeps its warped template from frame to frame while the
+  // rig's roll, scale and tilt barely change.
+  if (warp_cache_.size() != templates_.size())
+    warp_cache_.assign(templates_.size(), WarpCache());
+  WarpCache& cache = warp_cache_[i];
+  if (cache.valid && cornerMove(inverse - cache.inverse, h) <= kNegligibleWarpPx)
+    return &cache.values;
+  cache.inverse = inverse;
+  cache.valid = warpTemplate(templates_[i], features_[i], levels_[i], inverse, &cache.values);
+  return cache.valid ? &cache.values : nullptr;
+}
+
+bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& inverse,
+                                  std::vector<float>* values) const
 {
   const int h = refinementHalf(), width = 2 * h + 1, stride = paddedWidth(width);
-  const cv::Matx22d inverse = warp.inv();
-  const cv::Matx22d d = inverse - cv::Matx22d::eye();
-  // Below this at the window's corner (level pixels) the warp changes nothing that matters.
-  if (!((std::abs(d(0, 0)) + std::abs(d(0, 1)) + std::abs(d(1, 0)) + std::abs(d(1, 1))) * h > kNegligibleWarpPx))
-    return false;  // also when the warp is not finite
+  if (width > kMaxWindow)
+    return false;
   const cv::Mat& image = reference_levels_[static_cast<size_t>(level)];
   const double cx = toLevel(position.x - roi_.x, level), cy = toLevel(position.y - roi_.y, level);
   // The window's corners through the warp must stay inside the level.
@@ -242,23 +307,38 @@ bool TextureTracker::warpTemplate(const Template& t, const cv::Point2f& position
   if (cx - reach < 0.0 || cy - reach < 0.0 || cx + reach + 1.0 >= image.cols || cy + reach + 1.0 >= image.rows)
     return false;
   values->assign(t.value.size(), 0.0f);
-  // The dots' mask moves by a fraction of a pixel: kept as it is.
-  *mask = t.mask;
   const float i00 = static_cast<float>(inverse(0, 0)), i10 = static_cast<float>(inverse(1, 0));
-  const size_t row_step = image.step1();
+  const int row_step = static_cast<int>(image.step1());
+  const float* base = image.ptr<float>(0);
+  // Per row: the sample positions first (each from the row's start, no
+  // running sum, so that the loops vectorise), then their cells and
+  // weights, then the bilinear reads.
+  std::array<float, kMaxWindow> fx, fy;
+  std::array<int, kMaxWindow> at;
   for (int dy = -h; dy <= h; ++dy)
   {
     // The reference sample that lands at (dx, dy) of the current window.
-    float x = static_cast<float>(cx + inverse(0, 1) * dy - inverse(0, 0) * h);
-    float y = static_cast<float>(cy + inverse(1, 1) * dy - inverse(1, 0) * h);
-    float* out = &(*values)[static_cast<size_t>(dy + h) * stride];
-    for (int k = 0; k < width; ++k, x += i00, y += i10)
+    const float x = static_cast<float>(cx + inverse(0, 1) * dy - inverse(0, 0) * h);
+    const float y = static_cast<float>(cy + inverse(1, 1) * dy - inverse(1, 0) * h);
+    for (int k = 0; k < width; ++k)
     {
-      const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);  // non-negative: truncation is floor
-      const float fx = x - static_cast<float>(x0), fy = y - static_cast<float>(y0);
-      const float* r0 = image.ptr<float>(y0) + x0;
+      fx[k] = x + i00 * static_cast<float>(k);
+      fy[k] = y + i10 * static_cast<float>(k);
+    }
+    for (int k = 0; k < width; ++k)
+    {
+      const int x0 = static_cast<int>(fx[k]), y0 = static_cast<int>(fy[k]);  // non-negative: truncation is floor
+      fx[k] -= static_cast<float>(x0);
+      fy[k] -= static_cast<float>(y0);
+      at[k] = y0 * row_step + x0;
+    }
+    float* out = &(*values)[static_cast<size_t>(dy + h) * stride];
+    for (int k = 0; k < width; ++k)
+    {
+      const float* r0 = base + at[k];
       const float* r1 = r0 + row_step;
-      out[k] = (1 - fy) * ((1 - fx) * r0[0] + fx * r0[1]) + fy * ((1 - fx) * r1[0] + fx * r1[1]);
+      const float wx = fx[k], wy = fy[k];
+      out[k] = (1 - wy) * ((1 - wx) * r0[0] + wx * r0[1]) + wy * ((1 - wx) * r1[0] + wx * r1[1]);
     }
   }
   return true;
@@ -376,7 +456,7 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
   if (!frame_ok_ || predicted.size() != n || templates_.size() != n)
     return 0;
   const cv::Point2f offset(static_cast<float>(roi_.x), static_cast<float>(roi_.y));
-  std::vector<float> local_mask, warped_values, warped_mask;
+  std::vector<float> local_mask;
   int good = 0;
   for (size_t i = 0; i < n; ++i)
   {
@@ -385,25 +465,25 @@ int TextureTracker::refineAll(const std::vector<cv::Point2f>& predicted, const s
     cv::Point2f p = predicted[i] - offset, full;
     if (!t.ok || !std::isfinite(p.x) || !std::isfinite(p.y) || !accept(p, level, dots, &full))
       continue;  // a feature centred on a dot has lost its own texture
-    // Through the predicted warp; this frame's dots in the window get no weight either.
-    const bool warped =
-        warps && warps->size() == n && warpTemplate(t, features_[i], level, (*warps)[i], &warped_values, &warped_mask);
-    local_mask = warped ? warped_mask : t.mask;
+    // Through the predicted warp (the dots' mask moves by a fraction of a
+    // pixel: kept as it is); this frame's dots in the window get no weight either.
+    const std::vector<float>* values = warps && warps->size() == n ? warped(i, (*warps)[i]) : nullptr;
+    local_mask = t.mask;
     const bool masked = maskDots(dots, predicted[i], level, &local_mask);
     cv::Matx66d inverse_normal = t.inverse_normal, inverse_signal = t.inverse_signal;
     cv::Matx22d unit_covariance = t.shift_covariance;
     double samples = t.samples;
     if (masked)
     {
-      const cv::Matx66d normal = normalOf(t, local_mask, &samples);
+      const cv::Matx66d normal = maskedNormal(t, local_mask, &samples);
       if (!invertSpd(normal, &inverse_normal) || !signalInverse(normal, samples, t.gradient_noise_var, &inverse_signal))
         continue;
       unit_covariance = shiftCovariance(inverse_signal, level);
     }
     cv::Point2d q(toLevel(p.x, level), toLevel(p.y, level));
     double residual_ss = 0.0;
-    if (!refine(t, warped ? warped_values : t.value, frame_levels_[static_cast<size_t>(level)],
-                masked || warped ? local_mask : t.mask, inverse_normal, inverse_signal, &q, &residual_ss))
+    if (!refine(t, values ? *values : t.value, frame_levels_[static_cast<size_t>(level)], masked ? local_mask : t.mask,
+                inverse_normal, inverse_signal, &q, &residual_ss))
       continue;
     const double residual_var = residual_ss / std::max(1.0, samples - kParams);
     const cv::Matx22d cov = unit_covariance * residual_var;

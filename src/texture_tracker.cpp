@@ -63,6 +63,8 @@ void TextureTracker::clear()
   frame_ok_ = false;
   frame_levels_.clear();
   frame_pyramid_.clear();
+  frame_pyramid_ready_ = false;
+  warp_cache_.clear();
   reference_pyramid_.clear();
   reference_levels_.clear();
   noise_map_.release();
@@ -127,39 +129,56 @@ bool TextureTracker::floatChannel(const cv::Mat& image, int channel, const cv::R
   return true;
 }
 
-// One cv::pyrDown step from an 8-bit plane straight to CV_32F: the same
-// 5-tap binomial kernel and reflected border, without rounding the result
-// to whole 8-bit levels (at level 1 that rounding would add 0.29 DN of
-// noise to the 0.3 DN the sensor leaves) and without a full-resolution
-// float copy.
-void pyrDownToFloat(const cv::Mat& src, cv::Mat* dst)
+namespace
 {
-  const int W = src.cols, H = src.rows, w = (W + 1) / 2, h = (H + 1) / 2;
+int reflect101(int i, int n)
+{
+  return i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i);
+}
+
+// One cv::pyrDown step from one 8-bit channel of `image`'s `roi` (CN
+// interleaved channels) straight to CV_32F: the same 5-tap binomial kernel
+// and reflected border, without rounding the result to whole 8-bit levels
+// (at level 1 that rounding would add 0.29 DN of noise to the 0.3 DN the
+// sensor leaves), without a full-resolution float copy and without
+// extracting the channel into a full-frame plane first. The vertical sums
+// run over whole interleaved rows (they vectorise); all sums are exact
+// integers. *sums is one row of them, kept from frame to frame.
+template <int CN>
+void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std::vector<uint16_t>* sums, cv::Mat* dst)
+{
+  const int W = roi.width, H = roi.height, w = (W + 1) / 2, h = (H + 1) / 2, n = W * CN;
   dst->create(h, w, CV_32F);
-  std::vector<float> column(static_cast<size_t>(W) + 4);
-  float* c = column.data() + 2;
-  auto reflect = [](int i, int n) { return i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i); };
+  sums->resize(static_cast<size_t>(n));
+  uint16_t* c = sums->data();
+  const size_t first = static_cast<size_t>(roi.x) * CN;
+  auto at = [&](int x) { return std::min(std::max(reflect101(x, W), 0), W - 1) * CN + channel; };
   for (int y = 0; y < h; ++y)
   {
-    const uint8_t* r0 = src.ptr<uint8_t>(reflect(2 * y - 2, H));
-    const uint8_t* r1 = src.ptr<uint8_t>(reflect(2 * y - 1, H));
-    const uint8_t* r2 = src.ptr<uint8_t>(2 * y);
-    const uint8_t* r3 = src.ptr<uint8_t>(reflect(2 * y + 1, H));
-    const uint8_t* r4 = src.ptr<uint8_t>(reflect(2 * y + 2, H));
-    for (int x = 0; x < W; ++x)
-      c[x] = static_cast<float>(r0[x] + r4[x]) + 4.0f * static_cast<float>(r1[x] + r3[x]) + 6.0f * r2[x];
-    c[-1] = c[std::min(1, W - 1)];
-    c[-2] = c[std::min(2, W - 1)];
-    c[W] = c[std::max(W - 2, 0)];
-    c[W + 1] = c[std::max(W - 3, 0)];
+    const uint8_t* r0 = image.ptr<uint8_t>(roi.y + reflect101(2 * y - 2, H)) + first;
+    const uint8_t* r1 = image.ptr<uint8_t>(roi.y + reflect101(2 * y - 1, H)) + first;
+    const uint8_t* r2 = image.ptr<uint8_t>(roi.y + 2 * y) + first;
+    const uint8_t* r3 = image.ptr<uint8_t>(roi.y + reflect101(2 * y + 1, H)) + first;
+    const uint8_t* r4 = image.ptr<uint8_t>(roi.y + reflect101(2 * y + 2, H)) + first;
+    for (int x = 0; x < n; ++x)
+      c[x] = static_cast<uint16_t>(r0[x] + r4[x] + 4 * (r1[x] + r3[x]) + 6 * r2[x]);
     float* o = dst->ptr<float>(y);
     for (int x = 0; x < w; ++x)
     {
-      const float* p = c + 2 * x;
-      o[x] = (p[-2] + p[2] + 4.0f * (p[-1] + p[1]) + 6.0f * p[0]) * (1.0f / 256.0f);
+      const int xc = 2 * x;
+      int sum;
+      if (xc >= 2 && xc + 2 < W)
+      {
+        const uint16_t* p = c + xc * CN + channel;
+        sum = p[-2 * CN] + p[2 * CN] + 4 * (p[-CN] + p[CN]) + 6 * p[0];
+      }
+      else
+        sum = c[at(xc - 2)] + c[at(xc + 2)] + 4 * (c[at(xc - 1)] + c[at(xc + 1)]) + 6 * c[at(xc)];
+      o[x] = static_cast<float>(sum) * (1.0f / 256.0f);
     }
   }
 }
+}  // namespace
 
 // The refinement's float levels first_level .. `levels` - 1 of the ROI
 // (those below first_level left empty) and, at half resolution (level 1 in
@@ -178,22 +197,15 @@ bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_le
   }
   else
   {
-    // A mono frame is read in place, through a local header: scratch_ must
-    // never alias the caller's image (a later bgr8 frame's extractChannel
-    // would write into it, after the message holding it has been freed: the
-    // heap corruption that killed the manager in hostile_inputs.test).
-    cv::Mat plane;
+    // The tracked channel is read in place from the caller's image (nothing
+    // kept that could alias it once its message is freed).
+    (*float_levels)[0].release();
     if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
-    {
-      cv::extractChannel(image(roi_), scratch_, channel);
-      plane = scratch_;
-    }
+      pyrDownToFloat<3>(image, channel, roi_, &row_sums_, &(*float_levels)[1]);
     else if (image.type() == CV_8UC1)
-      plane = image(roi_);
+      pyrDownToFloat<1>(image, 0, roi_, &row_sums_, &(*float_levels)[1]);
     else
       return false;
-    (*float_levels)[0].release();
-    pyrDownToFloat(plane, &(*float_levels)[1]);
   }
   for (size_t l = 2; l < float_levels->size(); ++l)
     cv::pyrDown((*float_levels)[l - 1], (*float_levels)[l]);
@@ -369,6 +381,7 @@ void TextureTracker::retain(const std::vector<uint8_t>& keep)
   features_.swap(kept);
   levels_.swap(kept_levels);
   templates_.swap(kept_templates);
+  warp_cache_.clear();
   if (features_.empty())
     clear();
 }
@@ -376,7 +389,7 @@ void TextureTracker::retain(const std::vector<uint8_t>& keep)
 bool TextureTracker::setFrame(const cv::Mat& image, int channel)
 {
   // The buffers are kept from frame to frame (no allocation once running).
-  frame_pyramid_.clear();
+  frame_pyramid_ready_ = false;
   frame_ok_ = false;
   if (features_.empty() || image.empty() || image.size() != image_size_)
     return false;
@@ -431,9 +444,10 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
     return 0;
   const cv::Size win(config_.window_px, config_.window_px);
   const int levels = half ? std::max(config_.pyramid_levels - 1, 0) : config_.pyramid_levels;
-  if (frame_pyramid_.empty())
+  if (!frame_pyramid_ready_)
   {
     cv::buildOpticalFlowPyramid(frame_, frame_pyramid_, win, levels, false);
+    frame_pyramid_ready_ = true;
   }
   std::vector<uchar> status;
   std::vector<float> err;

@@ -2,7 +2,8 @@
 // 1024 x 1024 bgr8 image per frame (texture tracking included), simulator
 // frames rendered beforehand so that only the estimator is timed.
 //
-// Usage: benchmark_pose_delta [frames (default 40)] [case (0-3, default all)]
+// Usage: benchmark_pose_delta [frames (default 40)] [case (0-3, default all; -1 all)]
+//        [seconds between frames (default 0.1; 0.0333 for 30 Hz)]
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
@@ -35,6 +36,7 @@ int main(int argc, char** argv)
                         // Every valid frame becomes the reference (features chosen anew).
                         {"rough rock, frame_to_frame    ", 0.15, true, PoseDeltaMode::kFrameToFrame}};
   const int only = argc > 2 ? std::atoi(argv[2]) : -1;
+  const double dt = argc > 3 && std::atof(argv[3]) > 0.0 ? std::atof(argv[3]) : 0.1;
   for (int ci = 0; ci < 4; ++ci)
   {
     const Case& c = cases[ci];
@@ -48,7 +50,7 @@ int main(int argc, char** argv)
     std::vector<PoseDeltaInput> inputs;
     for (int k = 0; k <= frames; ++k)
     {
-      const SimFrame f = sim.render(0.1 * k);
+      const SimFrame f = sim.render(dt * k);
       PoseDeltaInput in;
       in.rows = sc.projector.rows;
       in.cols = sc.projector.cols;

@@ -137,6 +137,7 @@ private:
   struct Template
   {
     std::vector<float> value, gx, gy, mask;
+    cv::Matx66d normal;  // over the template's own mask
     cv::Matx66d inverse_normal;
     cv::Matx66d inverse_signal;       // with the template noise's share taken out (signalInverse)
     double samples = 0.0;             // window samples with weight
@@ -183,11 +184,19 @@ private:
                 std::vector<float>* mask) const;
   // Normal matrix of the model over the window samples with weight; *samples gets their number.
   cv::Matx66d normalOf(const Template& t, const std::vector<float>& mask, double* samples) const;
-  // The template's values (and mask) seen through the linear map `warp`,
-  // sampled from the reference level: *values, *mask. False when the warp is
-  // negligible (the template as it is will do).
-  bool warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& warp,
-                    std::vector<float>* values, std::vector<float>* mask) const;
+  // The same for a mask that is the template's own with some samples zeroed
+  // (from the template's normal matrix, less those samples).
+  cv::Matx66d maskedNormal(const Template& t, const std::vector<float>& mask, double* samples) const;
+  // Feature i's template values seen through the linear map `warp` (null:
+  // the template as it is will do, the warp being negligible or leaving the
+  // level), from the cache while the warp has not changed by more than a
+  // negligible amount since they were computed.
+  const std::vector<float>* warped(size_t i, const cv::Matx22d& warp) const;
+  // The template's values seen through the linear map whose inverse is
+  // `inverse`, sampled from the reference level: *values. False when the
+  // warped window leaves the level.
+  bool warpTemplate(const Template& t, const cv::Point2f& position, int level, const cv::Matx22d& inverse,
+                    std::vector<float>* values) const;
   // Refines *q (level-`level` ROI coordinates) for template t in `image`
   // (CV_32F) with the window weights `mask`; false when the window leaves
   // the image, the result jumps or the fitted gain says the window is not
@@ -230,9 +239,19 @@ private:
   int first_level_ = 0;                // the finest level of any feature
   cv::Mat frame_;                      // the current frame's ROI, tracked channel (half resolution with the refinement)
   std::vector<cv::Mat> frame_levels_;  // CV_32F refinement pyramid of the current ROI
-  std::vector<cv::Mat> frame_pyramid_;  // LK pyramid, built on the first pyramidal track of a frame
+  std::vector<cv::Mat> frame_pyramid_;  // LK pyramid (buffers kept from frame to frame)
+  bool frame_pyramid_ready_ = false;    // built for the current frame (on its first pyramidal track)
   cv::Mat scratch_;                     // the tracked channel, 8-bit
+  std::vector<uint16_t> row_sums_;      // one row of a pyrDown step's vertical sums
   bool frame_ok_ = false;               // setFrame() succeeded for the current frame
+  // Per feature: its last warped template and the inverse warp it was made with.
+  struct WarpCache
+  {
+    cv::Matx22d inverse;
+    std::vector<float> values;
+    bool valid = false;
+  };
+  mutable std::vector<WarpCache> warp_cache_;
 };
 
 }  // namespace structured_light_stabilizer
