@@ -7,7 +7,8 @@ thread CPU time its frame callbacks took (the core's work, conversions and
 publication included; receiving and deserialising messages, which happen on
 roscpp's threads, not). This node keeps the newest of those per nodelet and
 samples the manager process's user + system CPU (/proc/<pid>/stat; the
-manager is found by its name, ~manager), and times each frame from its
+manager's pid is asked from the node ~manager through its master), and
+times each frame from its
 publication (the arrival of camera/camera_info, published with the image by
 the CameraDriver and by rosbag play) to the arrival of its pose_delta (wall
 clock, so also on a replayed bag's clock). At shutdown it writes to ~out_file:
@@ -29,7 +30,10 @@ import os
 import threading
 import time
 
+import xmlrpc.client
+
 import numpy as np
+import rosnode
 import rospy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
@@ -40,18 +44,16 @@ IN_FLIGHT_S = 1.0
 
 
 def find_pid(name):
-    """Pid of the nodelet manager whose command line carries __name:=name."""
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open("/proc/%s/cmdline" % entry, "rb") as f:
-                args = f.read().split(b"\0")
-        except OSError:
-            continue
-        if b"manager" in args and ("__name:=%s" % name).encode() in args:
-            return int(entry)
-    return None
+    """Pid of the node `name` as its own master knows it (the node's getPid),
+    so that a manager of the same name under another master is never taken."""
+    try:
+        uri = rosnode.get_api_uri(rospy.get_master(), name, skip_cache=True)
+        if not uri:
+            return None
+        code, _, pid = xmlrpc.client.ServerProxy(uri).getPid(rospy.get_name())
+        return int(pid) if code == 1 else None
+    except (OSError, xmlrpc.client.Error, rosnode.ROSNodeIOException):
+        return None
 
 
 def cpu_seconds(pid):
@@ -66,7 +68,7 @@ def cpu_seconds(pid):
 
 class Probe:
     def __init__(self):
-        self.manager = rospy.get_param("~manager", "stabilizer_manager")
+        self.manager = rospy.resolve_name(rospy.get_param("~manager", "stabilizer_manager"))
         self.out_file = rospy.get_param("~out_file", "")
         self.nodelets = {}
         self.pid = None
