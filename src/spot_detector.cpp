@@ -104,6 +104,19 @@ std::string checkInput(const cv::Mat& image, const cv::Mat& ambient, PixelFormat
   }
   return error;
 }
+
+// Clears the outputs; the result's error says why the frames cannot be read.
+SpotDetectionResult startDetection(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
+                                   SpotDetectorDebug* debug, SpotDetectorTimings* timings)
+{
+  if (debug)
+    *debug = SpotDetectorDebug();
+  if (timings)
+    *timings = SpotDetectorTimings();
+  SpotDetectionResult result;
+  result.error = checkInput(image, ambient, format);
+  return result;
+}
 }  // namespace
 
 bool pixelFormatFromEncoding(const std::string& encoding, PixelFormat* format)
@@ -218,12 +231,7 @@ SpotDetectionResult SpotDetector::detect(const cv::Mat& image, PixelFormat forma
 SpotDetectionResult SpotDetector::detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                                          SpotDetectorDebug* debug, SpotDetectorTimings* timings)
 {
-  if (debug)
-    *debug = SpotDetectorDebug();
-  if (timings)
-    *timings = SpotDetectorTimings();
-  SpotDetectionResult result;
-  result.error = checkInput(image, ambient, format);
+  SpotDetectionResult result = startDetection(image, ambient, format, debug, timings);
   if (!result.error.empty())
     return result;
   StageTimer timer;
@@ -295,12 +303,7 @@ SpotDetectionResult SpotDetector::detectIn(const cv::Mat& image, const cv::Mat& 
 {
   if (regions.empty() || !canSearchRegions(format, !ambient.empty()))
     return detect(image, ambient, format, debug, timings);
-  if (debug)
-    *debug = SpotDetectorDebug();
-  if (timings)
-    *timings = SpotDetectorTimings();
-  SpotDetectionResult result;
-  result.error = checkInput(image, ambient, format);
+  SpotDetectionResult result = startDetection(image, ambient, format, debug, timings);
   if (!result.error.empty())
     return result;
   StageTimer timer;
