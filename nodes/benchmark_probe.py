@@ -33,7 +33,7 @@ import time
 import xmlrpc.client
 
 import numpy as np
-import rosnode
+import rosgraph
 import rospy
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
@@ -47,12 +47,10 @@ def find_pid(name):
     """Pid of the node `name` as its own master knows it (the node's getPid),
     so that a manager of the same name under another master is never taken."""
     try:
-        uri = rosnode.get_api_uri(rospy.get_master(), name, skip_cache=True)
-        if not uri:
-            return None
+        uri = rosgraph.Master(rospy.get_name()).lookupNode(name)
         code, _, pid = xmlrpc.client.ServerProxy(uri).getPid(rospy.get_name())
         return int(pid) if code == 1 else None
-    except (OSError, xmlrpc.client.Error, rosnode.ROSNodeIOException):
+    except (OSError, xmlrpc.client.Error, rosgraph.MasterError):
         return None
 
 
