@@ -86,12 +86,15 @@ void NodeletBase::startDiagnostics(double period_s, DiagnosticsClock clock)
       NODELET_ERROR_THROTTLE(10.0, "%s: diagnostics failed: %s", label_.c_str(), e.what());
     }
   };
+  // ROS time: a wall timer at half the period asks the updater, which
+  // publishes once `period_s` of ROS time has passed (Updater::update), so a
+  // replayed bag's clock paces the diagnostics. Not a ROS-time timer: under
+  // use_sim_time roscpp polls ROS-time timers every millisecond, about 25 ms
+  // of CPU per second in a manager on this machine (docs/performance.md).
   ros::NodeHandle& nh = getNodeHandle();
-  if (clock == DiagnosticsClock::kWallTime)
-    diagnostics_wall_timer_ =
-        nh.createWallTimer(ros::WallDuration(period_s), [update](const ros::WallTimerEvent&) { update(); });
-  else
-    diagnostics_timer_ = nh.createTimer(ros::Duration(period_s), [update](const ros::TimerEvent&) { update(); });
+  const double wall_period_s = clock == DiagnosticsClock::kWallTime ? period_s : 0.5 * period_s;
+  diagnostics_wall_timer_ =
+      nh.createWallTimer(ros::WallDuration(wall_period_s), [update](const ros::WallTimerEvent&) { update(); });
 }
 
 void NodeletBase::dropFrame(const std::string& why)
@@ -115,7 +118,6 @@ std::string NodeletBase::lastDropReason() const
 
 void NodeletBase::stopCallbacks()
 {
-  diagnostics_timer_.stop();
   diagnostics_wall_timer_.stop();
   std::lock_guard<std::mutex> lock(connect_mutex_);
   stopped_ = true;

@@ -43,9 +43,10 @@
 namespace structured_light_stabilizer
 {
 
-// Which clock paces the diagnostics timer. ROS time for the processing
-// nodelets (a replayed bag's clock); wall time for the CameraDriver, which
-// must report even while ROS time stands still (use_sim_time without /clock).
+// Which clock paces the diagnostics. ROS time for the processing nodelets
+// (a replayed bag's clock; polled by a wall timer, see startDiagnostics);
+// wall time for the CameraDriver, which must report even while ROS time
+// stands still (use_sim_time without /clock).
 enum class DiagnosticsClock
 {
   kRosTime,
@@ -144,7 +145,6 @@ private:
   std::string label_;
   std::vector<std::function<uint32_t()>> output_subscribers_;  // under connect_mutex_
   bool stopped_ = false;                                       // under connect_mutex_
-  ros::Timer diagnostics_timer_;
   ros::WallTimer diagnostics_wall_timer_;
   DropLog drop_log_;
   std::atomic<int64_t> callback_cpu_ns_{0};
