@@ -159,8 +159,11 @@ private:
     guarded(
         [&]
         {
-          const ros::Time now = ros::Time::now();
+          // The clock is read under the lock: the pose and watchdog callbacks
+          // may run on two threads, and the commands must go out in the
+          // order of their stamps (the rate limiter's time base).
           std::lock_guard<std::mutex> lock(mutex_);
+          const ros::Time now = ros::Time::now();
           frame_ = !camera_frame_param_.empty()    ? camera_frame_param_
                    : !msg->header.frame_id.empty() ? msg->header.frame_id
                                                    : std::string("camera_optical_frame");
@@ -182,8 +185,8 @@ private:
     guarded(
         [&]
         {
+          std::lock_guard<std::mutex> lock(mutex_);  // the clock under the lock: see poseCb
           const ros::Time now = ros::Time::now();
-          std::lock_guard<std::mutex> lock(mutex_);
           const StabilizationCommand c = controller_.tick(now.toSec());
           // Only a hold for want of estimates is sent from here; the commands
           // themselves go out with each estimate.

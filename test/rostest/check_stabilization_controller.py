@@ -9,8 +9,8 @@ at a time, and checks each command it answers with (stabilization_controller_bad
   at most twice (throttled);
 - "unobservable: tx ty rz": those axes are exactly zero, the others commanded;
 - no estimate for longer than ~timeout: the watchdog sends zeros.
-The controller runs with ~timeout 0.5 s so that a slow round trip of this
-checker is not a stale estimate."""
+The controller runs with ~timeout 1.0 s so that a slow round trip of this
+checker on a loaded CI machine is not a stale estimate."""
 import math
 import threading
 import time
@@ -24,6 +24,8 @@ from structured_light_stabilizer.msg import PoseDelta
 
 MAX_LINEAR_ACCELERATION = 0.5  # the cfg defaults
 MAX_ANGULAR_ACCELERATION = 2.0
+TIMEOUT_S = 1.0  # ~timeout in stabilization_controller_bad_input.test
+THROTTLE_S = 5.0  # a hold's reason is said at once, then at most every 5 s
 
 
 def estimate(t=(0.002, 0.0, 0.0), w=(0.0, 0.003, 0.0), stamp=None, valid=True, status="ok: 100 points",
@@ -95,7 +97,7 @@ class ControllerBadInput(unittest.TestCase):
         with self.lock:
             start = len(self.cmds)
         self.pub.publish(msg)
-        deadline = time.time() + 3.0
+        deadline = time.time() + 10.0
         while time.time() < deadline:
             with self.lock:
                 if msg.header.stamp in self.answered:
@@ -108,7 +110,7 @@ class ControllerBadInput(unittest.TestCase):
         self.assertTrue(got, "no command after an estimate")
         return got
 
-    def said(self, text, timeout=2.0):
+    def said(self, text, timeout=5.0):
         deadline = time.time() + timeout
         while time.time() < deadline:
             with self.lock:
@@ -158,23 +160,27 @@ class ControllerBadInput(unittest.TestCase):
                   "re-locked")
         cmds = self.run_valid(5, t=(0.0005, 0.0, 0.0), w=(0.0, 0.0, 0.0))
         self.assert_no_jump(cmds)
-        # Stale: newer than the last estimate but older than ~timeout (0.5 s)
+        # Stale: newer than the last estimate but older than ~timeout (1 s)
         # when it arrives, as after a long pipeline delay.
         last = rospy.Time.now()
         self.send(estimate(stamp=last), window=0.02)
-        time.sleep(0.7)
+        time.sleep(TIMEOUT_S + 0.3)
         self.hold(estimate(stamp=last + rospy.Duration(0.05)), "stale")
 
-        # Throttled: twenty invalid estimates in a row, said at most twice.
+        # Throttled: twenty invalid estimates in a row, said once, and again
+        # only for each 5 s they took (normally well under 1 s; a loaded CI
+        # machine may take longer).
         with self.lock:
             before = sum("fake failure" in m for m in self.logs)
+        began = time.time()
         for _ in range(20):
             self.send(estimate(valid=False, status="fake failure"), window=0.01)
+        took = time.time() - began
         time.sleep(1.0)
         with self.lock:
             said = sum("fake failure" in m for m in self.logs) - before
         self.assertGreaterEqual(said, 1)
-        self.assertLessEqual(said, 2)
+        self.assertLessEqual(said, 1 + int(took // THROTTLE_S), "said %d times in %.1f s" % (said, took))
 
     def test_unobservable_axes_are_never_commanded(self):
         self.run_valid(3)
@@ -191,7 +197,7 @@ class ControllerBadInput(unittest.TestCase):
 
     def test_watchdog_holds_without_estimates(self):
         self.run_valid(5)
-        time.sleep(1.0)  # > timeout 0.5 s
+        time.sleep(TIMEOUT_S + 0.5)
         with self.lock:
             recent = [c for c in self.cmds if (rospy.Time.now() - c.header.stamp).to_sec() < 0.4]
         self.assertGreater(len(recent), 3, "the watchdog sent no zero command")

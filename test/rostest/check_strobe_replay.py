@@ -16,8 +16,9 @@ depth 0.08 %). The limit is the motion compensation of the projector-off frames
 0.1 s away (10 Hz camera): with the true projector-off image at the frame's
 own time the core reaches 100 % and 0.080 px on this scene
 (docs/daylight.md). Bounded here at what is reached, with a margin: recall
->= 97 % pooled and >= 88 % in every frame (dots within 3 px of their true
-pixel / visible dots), centroid RMS <= 0.25 px."""
+>= 97 % pooled and >= 88 % in every frame that has a projector-off frame on
+each side (the ends of the recording may lack one: see bracketed; dots within
+3 px of their true pixel / visible dots), centroid RMS <= 0.25 px."""
 import math
 import os
 import shutil
@@ -46,6 +47,20 @@ def read_spots(path, topic):
         for _, msg, _ in bag.read_messages(topics=[topic]):
             spots[msg.header.stamp.to_nsec()] = [(c.x, c.y) for c in msg.centroids]
     return spots
+
+
+def bracketed(truth, path):
+    """The true frames whose projector-on frame has a projector-off frame
+    before and after it in the bag. `rosbag record --duration` cuts the
+    sequence anywhere: an on-frame at either end may lack one of its two
+    neighbours, and is then compensated from one side only (extrapolated,
+    recall 59 % measured on such a frame under CPU load, where the cut fell
+    there). Those frames are left out of the spot scores, and counted."""
+    with rosbag.Bag(path) as bag:
+        off = sorted(m.header.stamp.to_nsec() for _, m, _ in bag.read_messages(topics=["/camera/image_ambient"]))
+    if not off:
+        return {}
+    return {stamp: gt for stamp, gt in truth.items() if off[0] < stamp < off[-1]}
 
 
 def count_messages(path, topic):
@@ -129,7 +144,12 @@ class StrobeReplay(unittest.TestCase):
         if not os.path.exists(bag_out):
             self.fail_with_log("the replay produced no output")
 
-        recall, worst, rms = score_spots(read_spots(bag_out, "/spots"), read_spots(bag_in, "/sim/ground_truth/spots"))
+        truth_spots = read_spots(bag_in, "/sim/ground_truth/spots")
+        scored = bracketed(truth_spots, bag_in)
+        print("[ MEASURE ] spots scored on %d of %d projector-on frames (the others lack a projector-off frame on "
+              "one side, at the ends of the recording)" % (len(scored), len(truth_spots)))
+        self.assertGreaterEqual(len(scored), len(truth_spots) - 2)
+        recall, worst, rms = score_spots(read_spots(bag_out, "/spots"), scored)
         gt_points, _ = read_truth(bag_in)
         wrong, compared = 0, 0
         with rosbag.Bag(bag_out) as bag:
