@@ -75,11 +75,18 @@ void NodeletBase::addFrequencyStatus()
 
 void NodeletBase::startDiagnostics(double period_s, DiagnosticsClock clock)
 {
-  const auto update = [this]
+  // Wall time: force_update, since Updater::update compares ROS time with its
+  // next publication time and, while ROS time stands still (use_sim_time
+  // without /clock), would never publish.
+  const bool wall = clock == DiagnosticsClock::kWallTime;
+  const auto update = [this, wall]
   {
     try
     {
-      diagnostics_->update();
+      if (wall)
+        diagnostics_->force_update();
+      else
+        diagnostics_->update();
     }
     catch (const std::exception& e)
     {
@@ -92,7 +99,7 @@ void NodeletBase::startDiagnostics(double period_s, DiagnosticsClock clock)
   // use_sim_time roscpp polls ROS-time timers every millisecond, about 25 ms
   // of CPU per second in a manager on this machine (docs/performance.md).
   ros::NodeHandle& nh = getNodeHandle();
-  const double wall_period_s = clock == DiagnosticsClock::kWallTime ? period_s : 0.5 * period_s;
+  const double wall_period_s = wall ? period_s : 0.5 * period_s;
   diagnostics_wall_timer_ =
       nh.createWallTimer(ros::WallDuration(wall_period_s), [update](const ros::WallTimerEvent&) { update(); });
 }
