@@ -219,6 +219,7 @@ std::vector<std::string> SpotDetector::setParams(const SpotDetectorParams& param
   // current one stays warm across parameter updates.
   if (!method_ || params_.method != previous)
     method_ = findMethod(params_.method)->make();
+  method_->resetStatistics();
   return changes;
 }
 
@@ -290,22 +291,32 @@ void addDebug(const SpotDetectorDebug& d, const cv::Point& at, SpotDetectorDebug
 }
 }  // namespace
 
-bool SpotDetector::canSearchRegions(PixelFormat format, bool with_ambient) const
+bool SpotDetector::canSearchRegions() const
 {
-  return params_.method == SpotMethod::kFast &&
-         !(with_ambient && hasColour(format) && params_.projector_color != ProjectorColor::kNir &&
-           params_.projector_color != ProjectorColor::kWhite);
+  return params_.method == SpotMethod::kFast;
+}
+
+bool SpotDetector::hasRegionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+                                       std::string* why) const
+{
+  return method_->regionStatistics(ambient, format, frame, params_, why);
 }
 
 SpotDetectionResult SpotDetector::detectIn(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                                            const std::vector<cv::Rect>& regions, SpotDetectorDebug* debug,
                                            SpotDetectorTimings* timings)
 {
-  if (regions.empty() || !canSearchRegions(format, !ambient.empty()))
+  if (regions.empty() || !canSearchRegions() || !hasRegionStatistics(ambient, format, image.size()))
     return detect(image, ambient, format, debug, timings);
   SpotDetectionResult result = startDetection(image, ambient, format, debug, timings);
   if (!result.error.empty())
     return result;
+  struct RegionScope  // the method's region mode, also on an early return
+  {
+    SpotDetectionMethod* m;
+    explicit RegionScope(SpotDetectionMethod* method) : m(method) { m->beginRegions(); }
+    ~RegionScope() { m->endRegions(); }
+  } scope(method_.get());
   StageTimer timer;
   std::vector<std::pair<Spot, SpotQuality>> found;
   const std::vector<cv::Rect> merged = mergeSearchRegions(regions, image.size());

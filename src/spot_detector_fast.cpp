@@ -42,6 +42,15 @@ public:
   SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                              const SpotDetectorParams& params, SpotDetectorDebug* debug,
                              SpotDetectorTimings* timings) override;
+  bool regionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+                        const SpotDetectorParams& params, std::string* why) const override;
+  void beginRegions() override
+  {
+    in_regions_ = true;
+    ++noise_age_;
+  }
+  void endRegions() override { in_regions_ = false; }
+  void resetStatistics() override { frame_noise_ = MatchedNoise(); }
 
 private:
   void findCandidates(const FastParams& p, SpotDetectorDebug* debug);
@@ -56,7 +65,36 @@ private:
   BlobSplitter splitter_;
   std::vector<Candidate> candidates_;
   double threshold_ms_ = 0;
+  // The matched path's statistics of the last whole frame (regions use them;
+  // forgotten when the parameters change), that frame's size, and the region
+  // frames since.
+  MatchedNoise frame_noise_;
+  cv::Size noise_size_;
+  int noise_age_ = 0;
+  bool in_regions_ = false;
 };
+
+// Region frames after which the statistics of the last whole frame are
+// renewed by a whole-frame search (the sun and exposure change slowly; a
+// sudden change loses dots, and the planner then searches the whole frame).
+constexpr int kMaxNoiseAge = 30;
+
+bool FastMethod::regionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+                                  const SpotDetectorParams& params, std::string* why) const
+{
+  // Only the matched path (colour frames with an ambient frame) takes
+  // statistics of the whole frame.
+  if (ambient.empty() || !hasColour(format) || params.fast.matched_sigma_px <= 0.0 ||
+      !colourModel(params.projector_color, true, params.fast).colour)
+    return true;
+  const char* reason = !frame_noise_.valid          ? "no noise statistics of a whole frame"
+                       : noise_size_ != frame       ? "frame size changed"
+                       : noise_age_ >= kMaxNoiseAge ? "noise statistics renewed"
+                                                    : nullptr;
+  if (reason && why)
+    *why = reason;
+  return reason == nullptr;
+}
 
 // ---------------------------------------------------------------------------
 // Acceptance tests of one refined candidate.
@@ -253,7 +291,13 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const FastParams& p = params.fast;
   StageTimer timer;
   SpotDetectorTimings tm;
-  planes_.bind(image, ambient, format, params.projector_color, p);
+  planes_.bind(image, ambient, format, params.projector_color, p, in_regions_ ? &frame_noise_ : nullptr);
+  if (!in_regions_ && planes_.matchedPath())
+  {
+    frame_noise_ = planes_.matchedNoise();
+    noise_size_ = image.size();
+    noise_age_ = 0;
+  }
   findCandidates(p, debug);
   tm.threshold_ms = threshold_ms_;
   tm.labelling_ms = timer.lap() - threshold_ms_;

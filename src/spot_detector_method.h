@@ -9,6 +9,7 @@
 
 #include <chrono>
 #include <memory>
+#include <string>
 
 #include <opencv2/core.hpp>
 
@@ -29,6 +30,22 @@ public:
   virtual SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                                      const SpotDetectorParams& params, SpotDetectorDebug* debug,
                                      SpotDetectorTimings* timings) = 0;
+
+  // Region search (SpotDetector::detectIn): between beginRegions and
+  // endRegions, detect() is called on regions of one frame of `frame` size.
+  // A method whose thresholds come from the statistics of a whole frame uses
+  // those of the last whole frame it saw, and says here whether it has them
+  // (of a frame of that size, at most `max_age` region frames old); false:
+  // search the whole frame instead.
+  virtual bool regionStatistics(const cv::Mat& /*ambient*/, PixelFormat /*format*/, const cv::Size& /*frame*/,
+                                const SpotDetectorParams& /*params*/, std::string* /*why*/) const
+  {
+    return true;
+  }
+  virtual void beginRegions() {}
+  virtual void endRegions() {}
+  // New parameters: statistics kept from earlier frames no longer apply.
+  virtual void resetStatistics() {}
 };
 
 std::unique_ptr<SpotDetectionMethod> makeBaselineMethod();  // spot_detector_baseline.cpp

@@ -48,7 +48,7 @@ ColourModel colourModel(ProjectorColor color, bool colour_frame, const FastParam
 // Binding a frame.
 
 void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, ProjectorColor color,
-                       const FastParams& p)
+                       const FastParams& p, const MatchedNoise* fixed)
 {
   image_ = image;
   ambient_ = ambient;
@@ -64,17 +64,19 @@ void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat
   saturation_ = format == PixelFormat::kMono16 ? p.saturation_level * 257 : p.saturation_level;
   row_scores_.resize(static_cast<size_t>(std::max(grid_cols_, 1)));
   matched_.release();
+  matched_noise_ = MatchedNoise();
   if (!model_.colour)
     buildIntensityMaps(p);
   else if (!ambient_.empty() && p.matched_sigma_px > 0.0 && grid_cols_ > 0 && grid_rows_ > 0)
-    buildMatchedScores(p);
+    buildMatchedScores(p, fixed && fixed->valid ? fixed : nullptr);
 }
 
 // The difference's colour score smoothed by the dot's matched filter, and
 // the thresholds from its noise: the median and 1.4826 x the median absolute
 // deviation over every 4th cell of every 4th row (dots cover about 1 % of a
-// frame, so both are the noise's).
-void FramePlanes::buildMatchedScores(const FastParams& p)
+// frame, so both are the noise's), or `fixed` (a region, whose own cells are
+// mostly dots).
+void FramePlanes::buildMatchedScores(const FastParams& p, const MatchedNoise* fixed)
 {
   cv::Mat raw(grid_rows_, grid_cols_, CV_16S);
   for (int gy = 0; gy < grid_rows_; ++gy)
@@ -82,6 +84,19 @@ void FramePlanes::buildMatchedScores(const FastParams& p)
   cv::Mat smooth;
   raw.convertTo(smooth, CV_32F);
   cv::GaussianBlur(smooth, smooth, cv::Size(0, 0), p.matched_sigma_px / scale_);
+  if (fixed)
+    matched_noise_ = *fixed;
+  else
+    matched_noise_ = sampledNoise(smooth);
+  const float centre = matched_noise_.centre;
+  const double sigma = matched_noise_.sigma;
+  smooth.convertTo(matched_, CV_16S, kMatchedUnit, -kMatchedUnit * centre);
+  threshold_ = std::max(1, static_cast<int>(std::ceil(kMatchedUnit * p.matched_detect_snr * sigma)));
+  matched_peak_ = std::max(threshold_, static_cast<int>(std::ceil(kMatchedUnit * p.matched_peak_snr * sigma)));
+}
+
+MatchedNoise FramePlanes::sampledNoise(const cv::Mat& smooth) const
+{
   std::vector<float> sample;
   sample.reserve(static_cast<size_t>(grid_rows_ / 4 + 1) * static_cast<size_t>(grid_cols_ / 4 + 1));
   for (int gy = 0; gy < grid_rows_; gy += 4)
@@ -95,11 +110,12 @@ void FramePlanes::buildMatchedScores(const FastParams& p)
   const float centre = median(&sample);
   for (float& v : sample)
     v = std::abs(v - centre);
+  MatchedNoise noise;
+  noise.centre = centre;
   // At least a tenth of a DN: a noise-free frame must not make every cell a candidate.
-  const double sigma = std::max(0.1, 1.4826 * median(&sample));
-  smooth.convertTo(matched_, CV_16S, kMatchedUnit, -kMatchedUnit * centre);
-  threshold_ = std::max(1, static_cast<int>(std::ceil(kMatchedUnit * p.matched_detect_snr * sigma)));
-  matched_peak_ = std::max(threshold_, static_cast<int>(std::ceil(kMatchedUnit * p.matched_peak_snr * sigma)));
+  noise.sigma = std::max(0.1, 1.4826 * median(&sample));
+  noise.valid = true;
+  return noise;
 }
 
 // ---------------------------------------------------------------------------

@@ -93,14 +93,26 @@ struct PlaneWindow
   int index(int dx, int dy) const { return (dy + H) * stride + dx + H; }
 };
 
+// The matched path's noise statistics: the smoothed difference score's
+// median (centre) and robust sigma over the frame, in DN.
+struct MatchedNoise
+{
+  float centre = 0.0f;
+  double sigma = 0.0;
+  bool valid = false;
+};
+
 class FramePlanes
 {
 public:
   // Binds a frame that passed SpotDetector's checks (ambient: empty or of the
   // same size and type) for the stages that follow; builds the intensity
   // path's background and noise maps. The frames must outlive the use.
-  void bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, ProjectorColor color,
-            const FastParams& p);
+  // fixed (valid): the matched path takes its thresholds from these
+  // statistics instead of this image's (a region of a frame whose statistics
+  // were measured on the whole of an earlier one; SpotDetector::detectIn).
+  void bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, ProjectorColor color, const FastParams& p,
+            const MatchedNoise* fixed = nullptr);
 
   const ColourModel& model() const { return model_; }
   bool colourPath() const { return model_.colour; }
@@ -125,6 +137,8 @@ public:
   // Colour path with an ambient frame: scores are the matched-filtered
   // difference (FastParams::matched_sigma_px), thresholds from its noise.
   bool matchedPath() const { return !matched_.empty(); }
+  // The statistics the matched path used (valid only on that path).
+  const MatchedNoise& matchedNoise() const { return matched_noise_; }
   // Full-resolution coordinate of a grid coordinate (centre of its cell).
   double toPixel(double g) const { return scale_ * g + 0.5 * (scale_ - 1); }
 
@@ -171,7 +185,9 @@ private:
   static constexpr int kMatchedUnit = 8;
   cv::Mat matched_;
   int matched_peak_ = 0;
-  void buildMatchedScores(const FastParams& p);
+  MatchedNoise matched_noise_;
+  void buildMatchedScores(const FastParams& p, const MatchedNoise* fixed);
+  MatchedNoise sampledNoise(const cv::Mat& smooth) const;
   std::vector<int16_t> row_scores_;
 };
 

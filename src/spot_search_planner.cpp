@@ -117,6 +117,14 @@ void SpotSearchPlanner::reset()
   radius_.clear();
 }
 
+void SpotSearchPlanner::requestFullSearch(const std::string& why)
+{
+  if (need_full_)
+    return;  // the reason already given stays
+  need_full_ = true;
+  full_reason_ = why;
+}
+
 std::vector<cv::Rect> SpotSearchPlanner::plan(const cv::Size& frame)
 {
   ++frames_;

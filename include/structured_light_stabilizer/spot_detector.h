@@ -333,11 +333,17 @@ public:
   SpotDetectionResult detectIn(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                                const std::vector<cv::Rect>& regions, SpotDetectorDebug* debug = nullptr,
                                SpotDetectorTimings* timings = nullptr);
-  // Whether detectIn() can search regions of such frames: the fast method,
-  // except on colour frames with an ambient frame, whose matched filter takes
-  // its thresholds from the noise of the whole frame (detectIn then searches
-  // the whole frame).
-  bool canSearchRegions(PixelFormat format, bool with_ambient) const;
+  // Whether detectIn() searches regions: the fast method (the study's chain
+  // searches the whole frame).
+  bool canSearchRegions() const;
+  // Whether the fast method has what a region search of this frame needs:
+  // colour frames with an ambient frame take their matched filter's
+  // thresholds from the noise of the whole frame, measured on the last frame
+  // searched whole (of this size, with these parameters, at most 30 region
+  // frames ago). false (with the reason): detectIn searches the whole frame,
+  // which renews them; the caller's planner should count it as a full search.
+  bool hasRegionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+                           std::string* why = nullptr) const;
 
 private:
   SpotDetectorParams params_;

@@ -49,6 +49,9 @@ public:
   // The regions to search in the next frame of this size (SpotDetector::
   // detectIn); empty: the whole frame.
   std::vector<cv::Rect> plan(const cv::Size& frame);
+  // The next plan() is a full search, for this reason (e.g. the detector's
+  // statistics of a whole frame are due: SpotDetector::hasRegionStatistics).
+  void requestFullSearch(const std::string& why);
   // The result of the frame planned last.
   void update(const SpotDetectionResult& result);
 

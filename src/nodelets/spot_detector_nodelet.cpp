@@ -507,9 +507,12 @@ private:
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
     // The fast method searches where the dots can be (SpotSearchPlanner);
-    // the study's chain, and the matched filter of strobed colour frames, the
-    // whole frame.
-    const bool track = detector_.canSearchRegions(format, !ambient.empty());
+    // the study's chain the whole frame. Strobed colour frames are searched
+    // whole when the matched filter's noise statistics are due.
+    const bool track = detector_.canSearchRegions();
+    std::string why;
+    if (track && !detector_.hasRegionStatistics(ambient, format, image.size(), &why))
+      planner_.requestFullSearch(why);
     const std::vector<cv::Rect> regions = track ? planner_.plan(image.size()) : std::vector<cv::Rect>();
     const SpotDetectionResult result =
         detector_.detectIn(image, ambient, format, regions, want_debug ? &debug : nullptr, &timings);
