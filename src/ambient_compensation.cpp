@@ -162,6 +162,41 @@ cv::Mat warp(const cv::Mat& img, const cv::Matx33d& H, AmbientLayout layout)
   return out;
 }
 
+// The frames warped along their fractions of the motion (have_motion) and
+// blended with weight wb on the second, into `out`: the whole frame, or only
+// p.regions (interleaved layouts). A region's warp is the frame's, shifted to
+// the region's origin: the same pixels as the whole frame's warp there.
+void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv::Matx33d& Ha, const cv::Matx33d& Hb,
+                  double wb, const AmbientCompensationParams& p, cv::Mat* out)
+{
+  if (p.regions.empty() || bayer(p.layout))
+  {
+    const cv::Mat ia = have_motion ? warp(a, Ha, p.layout) : a;
+    const cv::Mat ib = have_motion ? warp(b, Hb, p.layout) : b;
+    cv::addWeighted(ia, 1.0 - wb, ib, wb, 0.0, *out);
+    return;
+  }
+  out->create(a.size(), a.type());
+  const cv::Rect frame(0, 0, a.cols, a.rows);
+  cv::Mat wa, wbuf;
+  for (const cv::Rect& region : p.regions)
+  {
+    const cv::Rect r = region & frame;
+    if (r.empty())
+      continue;
+    cv::Mat dst = (*out)(r);
+    if (!have_motion)
+    {
+      cv::addWeighted(a(r), 1.0 - wb, b(r), wb, 0.0, dst);
+      continue;
+    }
+    const cv::Matx33d shift(1, 0, -r.x, 0, 1, -r.y, 0, 0, 1);
+    cv::warpPerspective(a, wa, cv::Mat(shift * Ha), r.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    cv::warpPerspective(b, wbuf, cv::Mat(shift * Hb), r.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    cv::addWeighted(wa, 1.0 - wb, wbuf, wb, 0.0, dst);
+  }
+}
+
 // Orders the usable frames: *first is the earlier one. False when neither
 // is usable; *only set when exactly one is.
 bool usableFrames(double t, const AmbientFrame& a, const AmbientFrame& b, const AmbientCompensationParams& p,
@@ -245,10 +280,9 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
   }
   // Weights: a blend inside the interval; outside it the nearer frame alone.
   const double wb = std::min(std::max(w, 0.0), 1.0);
-  const cv::Mat ia = have_motion ? warp(first->image, homographyPower(out.motion_ab, w), p.layout) : first->image;
-  const cv::Mat ib =
-      have_motion ? warp(second->image, homographyPower(out.motion_ab, w - 1.0), p.layout) : second->image;
-  cv::addWeighted(ia, 1.0 - wb, ib, wb, 0.0, out.image);
+  const cv::Matx33d Ha = have_motion ? homographyPower(out.motion_ab, w) : cv::Matx33d::eye();
+  const cv::Matx33d Hb = have_motion ? homographyPower(out.motion_ab, w - 1.0) : cv::Matx33d::eye();
+  warpAndBlend(first->image, second->image, have_motion, Ha, Hb, wb, p, &out.image);
   out.noise_variance_scale = (1.0 - wb) * (1.0 - wb) + wb * wb;
   if (have_motion && hint)
     out.status = fmt("warped along the given motion at fraction %.2f", w);

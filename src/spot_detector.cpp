@@ -296,17 +296,17 @@ bool SpotDetector::canSearchRegions() const
   return params_.method == SpotMethod::kFast;
 }
 
-bool SpotDetector::hasRegionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+bool SpotDetector::hasRegionStatistics(bool with_ambient, PixelFormat format, const cv::Size& frame,
                                        std::string* why) const
 {
-  return method_->regionStatistics(ambient, format, frame, params_, why);
+  return method_->regionStatistics(with_ambient, format, frame, params_, why);
 }
 
 SpotDetectionResult SpotDetector::detectIn(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                                            const std::vector<cv::Rect>& regions, SpotDetectorDebug* debug,
                                            SpotDetectorTimings* timings)
 {
-  if (regions.empty() || !canSearchRegions() || !hasRegionStatistics(ambient, format, image.size()))
+  if (regions.empty() || !canSearchRegions() || !hasRegionStatistics(!ambient.empty(), format, image.size()))
     return detect(image, ambient, format, debug, timings);
   SpotDetectionResult result = startDetection(image, ambient, format, debug, timings);
   if (!result.error.empty())

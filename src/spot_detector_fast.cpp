@@ -42,8 +42,8 @@ public:
   SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                              const SpotDetectorParams& params, SpotDetectorDebug* debug,
                              SpotDetectorTimings* timings) override;
-  bool regionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
-                        const SpotDetectorParams& params, std::string* why) const override;
+  bool regionStatistics(bool with_ambient, PixelFormat format, const cv::Size& frame, const SpotDetectorParams& params,
+                        std::string* why) const override;
   void beginRegions() override
   {
     in_regions_ = true;
@@ -79,12 +79,12 @@ private:
 // sudden change loses dots, and the planner then searches the whole frame).
 constexpr int kMaxNoiseAge = 30;
 
-bool FastMethod::regionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+bool FastMethod::regionStatistics(bool with_ambient, PixelFormat format, const cv::Size& frame,
                                   const SpotDetectorParams& params, std::string* why) const
 {
   // Only the matched path (colour frames with an ambient frame) takes
   // statistics of the whole frame.
-  if (ambient.empty() || !hasColour(format) || params.fast.matched_sigma_px <= 0.0 ||
+  if (!with_ambient || !hasColour(format) || params.fast.matched_sigma_px <= 0.0 ||
       !colourModel(params.projector_color, true, params.fast).colour)
     return true;
   const char* reason = !frame_noise_.valid          ? "no noise statistics of a whole frame"

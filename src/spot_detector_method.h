@@ -37,7 +37,7 @@ public:
   // those of the last whole frame it saw, and says here whether it has them
   // (of a frame of that size, at most `max_age` region frames old); false:
   // search the whole frame instead.
-  virtual bool regionStatistics(const cv::Mat& /*ambient*/, PixelFormat /*format*/, const cv::Size& /*frame*/,
+  virtual bool regionStatistics(bool /*with_ambient*/, PixelFormat /*format*/, const cv::Size& /*frame*/,
                                 const SpotDetectorParams& /*params*/, std::string* /*why*/) const
   {
     return true;

@@ -18,6 +18,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -63,6 +64,11 @@ struct AmbientCompensationParams
   int pyramid_levels = 3;
   double ransac_threshold_px = 0.5;
   int min_points = 40;
+  // The parts of the on-frame that will be read (SpotDetector::detectIn's
+  // merged regions); empty: the whole frame. Only these are warped and
+  // blended (interleaved layouts; a Bayer mosaic is compensated whole);
+  // elsewhere the estimate's image is undefined.
+  std::vector<cv::Rect> regions;
 };
 
 struct AmbientEstimate

@@ -342,7 +342,7 @@ public:
   // searched whole (of this size, with these parameters, at most 30 region
   // frames ago). false (with the reason): detectIn searches the whole frame,
   // which renews them; the caller's planner should count it as a full search.
-  bool hasRegionStatistics(const cv::Mat& ambient, PixelFormat format, const cv::Size& frame,
+  bool hasRegionStatistics(bool with_ambient, PixelFormat format, const cv::Size& frame,
                            std::string* why = nullptr) const;
 
 private:

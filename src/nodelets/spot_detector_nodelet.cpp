@@ -441,7 +441,7 @@ private:
   // before, with no wait), or the nearest one as it is when compensation is
   // not possible. Empty (with a throttled warning) when there is none fit to
   // use: detection goes on without it.
-  cv::Mat ambientFor(const sensor_msgs::Image& frame, PixelFormat format)
+  cv::Mat ambientFor(const sensor_msgs::Image& frame, PixelFormat format, const std::vector<cv::Rect>& regions)
   {
     std::vector<sensor_msgs::ImageConstPtr> near = ambientsAround(frame.header.stamp);
     std::string why =
@@ -460,6 +460,7 @@ private:
     AmbientCompensationParams params;
     params.max_gap_s = 2.0 * ambient_max_gap_s_;
     params.layout = ambientLayout(format);
+    params.regions = regions;  // only what the detector will read
     const AmbientEstimate estimate = compensateAmbient(frame.header.stamp.toSec(), a, b, params);
     ++(estimate.valid ? frames_compensated_ : frames_nearest_ambient_);
     if (!estimate.valid)
@@ -502,18 +503,22 @@ private:
       return;
     }
     const cv::Mat image = imageView(*msg, format, &swapped_);
-    const cv::Mat ambient = strobe_ ? ambientFor(*msg, format) : cv::Mat();
+    // The fast method searches where the dots can be (SpotSearchPlanner);
+    // the study's chain the whole frame. Strobed colour frames are searched
+    // whole when the matched filter's noise statistics are due. In strobe
+    // mode the ambient image is made for the searched regions only (the
+    // detector's merge of them).
+    const bool track = detector_.canSearchRegions();
+    std::string why;
+    if (track && !detector_.hasRegionStatistics(strobe_, format, image.size(), &why))
+      planner_.requestFullSearch(why);
+    const std::vector<cv::Rect> regions = track ? planner_.plan(image.size()) : std::vector<cv::Rect>();
+    const cv::Mat ambient =
+        strobe_ ? ambientFor(*msg, format, regions.empty() ? regions : mergeSearchRegions(regions, image.size()))
+                : cv::Mat();
     const bool want_debug = pub_debug_.getNumSubscribers() > 0;
     SpotDetectorDebug debug;
     SpotDetectorTimings timings;
-    // The fast method searches where the dots can be (SpotSearchPlanner);
-    // the study's chain the whole frame. Strobed colour frames are searched
-    // whole when the matched filter's noise statistics are due.
-    const bool track = detector_.canSearchRegions();
-    std::string why;
-    if (track && !detector_.hasRegionStatistics(ambient, format, image.size(), &why))
-      planner_.requestFullSearch(why);
-    const std::vector<cv::Rect> regions = track ? planner_.plan(image.size()) : std::vector<cv::Rect>();
     const SpotDetectionResult result =
         detector_.detectIn(image, ambient, format, regions, want_debug ? &debug : nullptr, &timings);
     if (track)

@@ -100,6 +100,46 @@ TEST(AmbientCompensation, WarpedAmbientMatchesTheTruthAtTheOnFramesTime)
   }
 }
 
+// Only the regions the detector will read (AmbientCompensationParams::
+// regions): inside them the same pixels as the whole frame's compensation,
+// warped and blended or blended only; regions at the frame's edges and
+// overlapping ones included.
+TEST(AmbientCompensation, RegionsAreThoseOfTheWholeFrame)
+{
+  const Simulator sim(movingRig(8, 1.0));
+  FrameRequest off;
+  off.projector_on = false;
+  const double t = 0.7;
+  const AmbientFrame before{sim.render(t - kFramePeriod, off).image, t - kFramePeriod};
+  const AmbientFrame after{sim.render(t + kFramePeriod, off).image, t + kFramePeriod};
+  const std::vector<cv::Rect> regions = {cv::Rect(100, 120, 40, 36), cv::Rect(120, 130, 50, 50),
+                                         cv::Rect(0, 0, 30, 20),     cv::Rect(990, 1000, 60, 40),
+                                         cv::Rect(0, 500, 1024, 64), cv::Rect(-10, 300, 20, 20)};
+  for (AmbientMotion motion : {AmbientMotion::kHomography, AmbientMotion::kBlend})
+  {
+    AmbientCompensationParams p;
+    p.motion = motion;
+    const AmbientEstimate whole = compensateAmbient(t, before, after, p);
+    p.regions = regions;
+    const AmbientEstimate part = compensateAmbient(t, before, after, p);
+    ASSERT_TRUE(whole.valid && part.valid) << part.status;
+    ASSERT_EQ(part.image.size(), whole.image.size());
+    ASSERT_EQ(part.image.type(), whole.image.type());
+    for (const cv::Rect& region : regions)
+    {
+      const cv::Rect r = region & cv::Rect(0, 0, whole.image.cols, whole.image.rows);
+      cv::Mat d;
+      cv::absdiff(part.image(r), whole.image(r), d);
+      double worst = 0.0;
+      cv::minMaxLoc(d.reshape(1), nullptr, &worst);
+      // The region's warp matrix is the frame's shifted: the same bilinear
+      // weights up to rounding (1 DN at most, rarely).
+      EXPECT_LE(worst, 1.0) << "region " << r;
+      EXPECT_LT(cv::mean(d)[0], 0.01) << "region " << r;
+    }
+  }
+}
+
 TEST(AmbientCompensation, FastMotion)
 {
   const Simulator sim(movingRig(5, 4.0));  // about 5 px between the ambient frames

@@ -154,7 +154,7 @@ TEST(SpotSearchPlanner, TrackedDetectionMatchesFullSearchAgainstTruth)
       const std::vector<cv::Point2d> truth = truthOf(f);
       const SpotDetectionResult a = full.detect(f.image, ambient, format);
       std::string why;
-      if (!tracked.hasRegionStatistics(ambient, format, f.image.size(), &why))
+      if (!tracked.hasRegionStatistics(!ambient.empty(), format, f.image.size(), &why))
         planner.requestFullSearch(why);
       const std::vector<cv::Rect> regions = planner.plan(f.image.size());
       const SpotDetectionResult b = tracked.detectIn(f.image, ambient, format, regions);
