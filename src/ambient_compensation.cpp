@@ -54,8 +54,9 @@ std::string checkImages(const AmbientFrame& a, const AmbientFrame& b, const Ambi
 }
 
 // 8-bit grey image for tracking: a Bayer mosaic binned 2 x 2 (its luma at
-// half resolution, *scale = 0.5), colour converted, 16-bit scaled.
-cv::Mat trackingImage(const cv::Mat& img, AmbientLayout layout, double* scale)
+// half resolution, *scale = 0.5), colour converted (and binned 2 x 2 when
+// `bin`), 16-bit scaled.
+cv::Mat trackingImage(const cv::Mat& img, AmbientLayout layout, bool bin, double* scale)
 {
   cv::Mat grey;
   *scale = 1.0;
@@ -72,6 +73,13 @@ cv::Mat trackingImage(const cv::Mat& img, AmbientLayout layout, double* scale)
     cv::cvtColor(img, grey, cv::COLOR_BGRA2GRAY);
   else
     grey = img;
+  if (bin && !bayer(layout) && grey.cols >= 4 && grey.rows >= 4)
+  {
+    cv::Mat half;
+    cv::resize(grey, half, cv::Size(grey.cols / 2, grey.rows / 2), 0, 0, cv::INTER_AREA);
+    grey = half;
+    *scale = 0.5;
+  }
   if (grey.depth() == CV_8U)
     return grey;
   double hi = 0.0;
@@ -85,7 +93,8 @@ cv::Mat trackingImage(const cv::Mat& img, AmbientLayout layout, double* scale)
 bool estimateMotion(const cv::Mat& a, const cv::Mat& b, const AmbientCompensationParams& p, AmbientEstimate* out)
 {
   double scale = 1.0;
-  const cv::Mat ga = trackingImage(a, p.layout, &scale), gb = trackingImage(b, p.layout, &scale);
+  const cv::Mat ga = trackingImage(a, p.layout, p.half_resolution_tracking, &scale),
+                gb = trackingImage(b, p.layout, p.half_resolution_tracking, &scale);
   std::vector<cv::Point2f> pa, pb;
   const int margin = p.window_px;
   for (int i = 0; i < p.grid; ++i)

@@ -6,6 +6,7 @@
 //
 //   evaluate_daylight [--rig FILE] [--ratio R] [--strobe 0|1] [--sun S] [--distance D]... [--seeds A,B]
 //                     [--frames N] [--texture PERIOD_M] [--sweep R1,R2,...] [--motion M]
+//                     [--full-resolution-tracking 0|1]
 //
 // Strobed: the projector fires on every second frame (30 Hz camera, 15 Hz
 // dot frames); the ambient frames around each on-frame are compensated to
@@ -57,6 +58,7 @@ struct Options
   double albedo = -1.0;       // > 0: a uniform rock of this albedo (no texture at all)
   double camera_rate = 30.0;  // Hz, every frame (strobed: on and off alternate)
   bool extrapolate = false;   // strobed: the ambient from the two frames before (a nodelet that does not wait)
+  bool full_resolution_tracking = false;  // strobed: track the ambient frames' motion at full resolution
   bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
   int detect_threshold = -1, min_peak = -1;  // >= 0: the SpotDetector's fast.detect_threshold / fast.min_peak
 };
@@ -204,8 +206,10 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
     if (o.strobe)
     {
       const double t2 = o.extrapolate ? t - 3.0 * period : t + period;
+      AmbientCompensationParams ap;
+      ap.half_resolution_tracking = !o.full_resolution_tracking;
       const AmbientEstimate amb =
-          compensateAmbient(t, {sim.render(t - period, off).image, t - period}, {sim.render(t2, off).image, t2});
+          compensateAmbient(t, {sim.render(t - period, off).image, t - period}, {sim.render(t2, off).image, t2}, ap);
       texture = o.true_ambient ? sim.render(t, off).image : amb.image;
       if (o.difference)
         image = difference(f.image, amb.image, o.normalise);
@@ -316,6 +320,8 @@ int main(int argc, char** argv)
       o.camera_rate = std::atof(v.c_str());
     else if (k == "--extrapolate")
       o.extrapolate = v != "0";
+    else if (k == "--full-resolution-tracking")
+      o.full_resolution_tracking = std::atoi(v.c_str()) != 0;
     else if (k == "--true-ambient")
       o.true_ambient = v != "0";
     else if (k == "--difference")

@@ -64,6 +64,11 @@ struct AmbientCompensationParams
   int pyramid_levels = 3;
   double ransac_threshold_px = 0.5;
   int min_points = 40;
+  // Track on the grey image binned 2 x 2 (as a Bayer mosaic always is): a
+  // quarter of the pixels for the pyramid and its gradients, which are most
+  // of the tracking's cost; the motion is fitted to a few hundred points, so
+  // its error stays well below the bilinear warp's (test_ambient_compensation).
+  bool half_resolution_tracking = true;
   // The parts of the on-frame that will be read (SpotDetector::detectIn's
   // merged regions); empty: the whole frame. Only these are warped and
   // blended (interleaved layouts; a Bayer mosaic is compensated whole);
