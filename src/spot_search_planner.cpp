@@ -13,13 +13,19 @@ namespace
 constexpr double kSigmaWindows = 4.0;  // a dot's window: 4 sigma each side (the refinement uses 3)
 constexpr double kDefaultSigma = 4.0;  // px, a dot of unknown size (the baseline reports none)
 
-// `r` widened to even coordinates and clipped to the frame.
-cv::Rect evenClip(const cv::Rect& r, const cv::Size& frame)
+// Regions start and end on multiples of this many pixels (or at the frame's
+// edge): a Bayer cell and a yuv422 pixel pair stay whole, and so do the fast
+// method's coarse blocks (4 cells: 8 px on a Bayer mosaic), so that a
+// region's blocks are the whole frame's and the region finds what a full
+// search finds there.
+constexpr int kAlign = 8;
+
+// `r` widened to aligned coordinates and clipped to the frame.
+cv::Rect alignedClip(const cv::Rect& r, const cv::Size& frame)
 {
-  int x0 = std::max(0, r.x) & ~1, y0 = std::max(0, r.y) & ~1;
-  int x1 = std::min(frame.width, r.x + r.width), y1 = std::min(frame.height, r.y + r.height);
-  x1 = std::min(frame.width, x1 + (x1 & 1));
-  y1 = std::min(frame.height, y1 + (y1 & 1));
+  const int x0 = std::max(0, r.x) / kAlign * kAlign, y0 = std::max(0, r.y) / kAlign * kAlign;
+  const int x1 = std::min(frame.width, (r.x + r.width + kAlign - 1) / kAlign * kAlign);
+  const int y1 = std::min(frame.height, (r.y + r.height + kAlign - 1) / kAlign * kAlign);
   return x1 > x0 && y1 > y0 ? cv::Rect(x0, y0, x1 - x0, y1 - y0) : cv::Rect();
 }
 
@@ -70,7 +76,7 @@ std::vector<cv::Rect> mergeSearchRegions(const std::vector<cv::Rect>& regions, c
   out.reserve(regions.size());
   for (const cv::Rect& r : regions)
   {
-    const cv::Rect c = evenClip(r, frame);
+    const cv::Rect c = alignedClip(r, frame);
     if (c.area() > 0)
       out.push_back(c);
   }

@@ -32,8 +32,10 @@ struct SpotSearchParams
 };
 
 // Regions cut from a frame of `frame` size: clipped to the frame, widened to
-// even coordinates (a Bayer cell, a yuv422 pixel pair stay whole), and merged
-// where one box over two costs at most a quarter more pixels than the two.
+// multiples of 8 px (a Bayer cell, a yuv422 pixel pair and the fast method's
+// coarse blocks stay whole, so a region finds what a full search finds
+// there), and merged where one box over two costs at most a quarter more
+// pixels than the two.
 std::vector<cv::Rect> mergeSearchRegions(const std::vector<cv::Rect>& regions, const cv::Size& frame);
 
 class SpotSearchPlanner

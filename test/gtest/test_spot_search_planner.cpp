@@ -58,20 +58,20 @@ double pixelsOf(const std::vector<cv::Rect>& regions)
 TEST(SpotSearchRegions, ClippedEvenAndMergedOnlyWhenCheap)
 {
   const cv::Size frame(100, 80);
-  // Clipped to the frame, widened to even coordinates.
+  // Clipped to the frame, widened to multiples of 8 px (or the frame's edge).
   std::vector<cv::Rect> out = mergeSearchRegions({cv::Rect(-5, 3, 20, 10)}, frame);
   ASSERT_EQ(out.size(), 1u);
-  EXPECT_EQ(out[0], cv::Rect(0, 2, 16, 12));
+  EXPECT_EQ(out[0], cv::Rect(0, 0, 16, 16));
   out = mergeSearchRegions({cv::Rect(95, 75, 20, 20)}, frame);
   ASSERT_EQ(out.size(), 1u);
-  EXPECT_EQ(out[0], cv::Rect(94, 74, 6, 6));
+  EXPECT_EQ(out[0], cv::Rect(88, 72, 12, 8));
   // Two nearly identical boxes become one; two far apart stay two; a box
   // outside the frame vanishes.
   out = mergeSearchRegions(
       {cv::Rect(10, 10, 20, 20), cv::Rect(12, 12, 20, 20), cv::Rect(60, 40, 10, 10), cv::Rect(200, 200, 5, 5)}, frame);
   ASSERT_EQ(out.size(), 2u);
-  EXPECT_EQ(out[0], cv::Rect(10, 10, 22, 22));
-  EXPECT_EQ(out[1], cv::Rect(60, 40, 10, 10));
+  EXPECT_EQ(out[0], cv::Rect(8, 8, 24, 24));
+  EXPECT_EQ(out[1], cv::Rect(56, 40, 16, 16));
   // Diagonal neighbours: one box would waste half its pixels.
   out = mergeSearchRegions({cv::Rect(0, 0, 20, 20), cv::Rect(16, 16, 20, 20)}, frame);
   EXPECT_EQ(out.size(), 2u);
