@@ -89,21 +89,56 @@ cv::Mat trackingImage(const cv::Mat& img, AmbientLayout layout, bool bin, double
   return out;
 }
 
-// Homography a -> b in full-resolution pixels from the rock's texture.
-bool estimateMotion(const cv::Mat& a, const cv::Mat& b, const AmbientCompensationParams& p, AmbientEstimate* out)
+bool sameFrame(const AmbientTrackingCache::Entry& e, const AmbientFrame& f, const AmbientCompensationParams& p)
 {
-  double scale = 1.0;
-  const cv::Mat ga = trackingImage(a, p.layout, p.half_resolution_tracking, &scale),
-                gb = trackingImage(b, p.layout, p.half_resolution_tracking, &scale);
+  return !e.pyramid.empty() && e.stamp_s == f.stamp_s && e.size == f.image.size() && e.type == f.image.type() &&
+         e.layout == p.layout && e.half_resolution == p.half_resolution_tracking && e.window_px == p.window_px &&
+         e.pyramid_levels == p.pyramid_levels;
+}
+
+// The tracking pyramid of a frame: the cache's when it has it.
+AmbientTrackingCache::Entry trackingPyramid(const AmbientFrame& f, const AmbientCompensationParams& p,
+                                            const AmbientTrackingCache* cache)
+{
+  if (cache)
+    for (const AmbientTrackingCache::Entry& e : cache->entries)
+      if (sameFrame(e, f, p))
+        return e;
+  AmbientTrackingCache::Entry e;
+  e.stamp_s = f.stamp_s;
+  e.size = f.image.size();
+  e.type = f.image.type();
+  e.layout = p.layout;
+  e.half_resolution = p.half_resolution_tracking;
+  e.window_px = p.window_px;
+  e.pyramid_levels = p.pyramid_levels;
+  const cv::Mat grey = trackingImage(f.image, p.layout, p.half_resolution_tracking, &e.scale);
+  cv::buildOpticalFlowPyramid(grey, e.pyramid, cv::Size(p.window_px, p.window_px), p.pyramid_levels, true);
+  return e;
+}
+
+// Homography a -> b in full-resolution pixels from the rock's texture.
+bool estimateMotion(const AmbientFrame& a, const AmbientFrame& b, const AmbientCompensationParams& p,
+                    AmbientTrackingCache* cache, AmbientEstimate* out)
+{
+  const AmbientTrackingCache::Entry ea = trackingPyramid(a, p, cache), eb = trackingPyramid(b, p, cache);
+  if (cache)
+  {
+    cache->entries[0] = ea;
+    cache->entries[1] = eb;
+  }
+  const double scale = ea.scale;
+  const cv::Size size = ea.pyramid.front().size();
   std::vector<cv::Point2f> pa, pb;
   const int margin = p.window_px;
   for (int i = 0; i < p.grid; ++i)
     for (int j = 0; j < p.grid; ++j)
-      pa.emplace_back(margin + (ga.cols - 2.0f * margin) * (j + 0.5f) / p.grid,
-                      margin + (ga.rows - 2.0f * margin) * (i + 0.5f) / p.grid);
+      pa.emplace_back(margin + (size.width - 2.0f * margin) * (j + 0.5f) / p.grid,
+                      margin + (size.height - 2.0f * margin) * (i + 0.5f) / p.grid);
   std::vector<uchar> status;
   std::vector<float> err;
-  cv::calcOpticalFlowPyrLK(ga, gb, pa, pb, status, err, cv::Size(p.window_px, p.window_px), p.pyramid_levels,
+  cv::calcOpticalFlowPyrLK(ea.pyramid, eb.pyramid, pa, pb, status, err, cv::Size(p.window_px, p.window_px),
+                           p.pyramid_levels,
                            cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 30, 1e-3), 0, 1e-3);
   std::vector<cv::Point2f> sa, sb;
   for (size_t k = 0; k < pa.size(); ++k)
@@ -256,7 +291,8 @@ cv::Matx33d planeHomography(const cv::Matx33d& K, const cv::Matx33d& R, const cv
 }
 
 AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const AmbientFrame& b,
-                                  const AmbientCompensationParams& p, const cv::Matx33d* hint)
+                                  const AmbientCompensationParams& p, const cv::Matx33d* hint,
+                                  AmbientTrackingCache* cache)
 {
   AmbientEstimate out;
   const AmbientFrame *first = nullptr, *second = nullptr;
@@ -285,7 +321,7 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
       have_motion = true;
     }
     else
-      have_motion = estimateMotion(first->image, second->image, p, &out);
+      have_motion = estimateMotion(*first, *second, p, cache, &out);
   }
   // Weights: a blend inside the interval; outside it the nearer frame alone.
   const double wb = std::min(std::max(w, 0.0), 1.0);

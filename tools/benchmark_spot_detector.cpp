@@ -172,10 +172,11 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
   // projector-off frames; each on-frame's ambient is compensated from the
   // off-frames before and after it (as the nodelet does, timed with the
   // detection): the whole frame for a full search, the searched regions when
-  // tracking.
+  // tracking, where each projector-off frame's tracking pyramid is also
+  // kept for the next on-frame (AmbientTrackingCache).
   const double period = strobed ? 1.0 / 15.0 : 1.0 / 30.0;
   std::vector<SimFrame> seq;
-  std::vector<AmbientFrame> before, after;
+  std::vector<AmbientFrame> offs;  // offs[k] before on-frame k, offs[k + 1] after it
   FrameRequest off;
   off.projector_on = false;
   for (int i = 0; i < frames; ++i)
@@ -183,18 +184,18 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
     const double t = i * period;
     seq.push_back(sim.render(t));
     if (strobed)
-    {
-      before.push_back({sim.render(t - 1.0 / 30.0, off).image, t - 1.0 / 30.0});
-      after.push_back({sim.render(t + 1.0 / 30.0, off).image, t + 1.0 / 30.0});
-    }
+      offs.push_back({sim.render(t - 1.0 / 30.0, off).image, t - 1.0 / 30.0});
   }
-  const auto ambientOf = [&](size_t k, const std::vector<cv::Rect>& regions)
+  if (strobed)
+    offs.push_back({sim.render(frames * period - 1.0 / 30.0, off).image, frames * period - 1.0 / 30.0});
+  AmbientTrackingCache cache;
+  const auto ambientOf = [&](size_t k, const std::vector<cv::Rect>& regions, AmbientTrackingCache* c)
   {
     if (!strobed)
       return cv::Mat();
     AmbientCompensationParams ap;
     ap.regions = regions;
-    return compensateAmbient(k * period, before[k], after[k], ap).image;
+    return compensateAmbient(k * period, offs[k], offs[k + 1], ap, nullptr, c).image;
   };
   SpotDetectorParams pb;
   pb.method = SpotMethod::kBaseline;
@@ -214,13 +215,13 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
       baseline.detect(im, PixelFormat::kBgr8);
       cpu_b.push_back(threadCpuMs() - c0);
       c0 = threadCpuMs();
-      const SpotDetectionResult f = full.detect(im, ambientOf(k, {}), PixelFormat::kBgr8);
+      const SpotDetectionResult f = full.detect(im, ambientOf(k, {}, nullptr), PixelFormat::kBgr8);
       cpu_f.push_back(threadCpuMs() - c0);
       c0 = threadCpuMs();
       if (!tracked.hasRegionStatistics(strobed, PixelFormat::kBgr8, im.size()))
         planner.requestFullSearch("noise statistics");
       const std::vector<cv::Rect> regions = planner.plan(im.size());
-      const cv::Mat amb = ambientOf(k, regions.empty() ? regions : mergeSearchRegions(regions, im.size()));
+      const cv::Mat amb = ambientOf(k, regions.empty() ? regions : mergeSearchRegions(regions, im.size()), &cache);
       const SpotDetectionResult t = tracked.detectIn(im, amb, PixelFormat::kBgr8, regions);
       planner.update(t);
       cpu_t.push_back(threadCpuMs() - c0);

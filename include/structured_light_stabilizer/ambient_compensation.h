@@ -91,9 +91,32 @@ struct AmbientEstimate
   double residual_px = 0.0;                    // their RMS residual
 };
 
+// The tracking pyramids of the last call's two ambient frames, kept for the
+// next: in a strobed stream each projector-off frame lies between two
+// projector-on frames and is compensated with both, so its grey image and
+// pyramid are built once. An entry is reused for a frame of the same stamp,
+// size and type with the same tracking parameters (a frame's pixels must not
+// change under one stamp). One per stream; not thread-safe.
+struct AmbientTrackingCache
+{
+  struct Entry
+  {
+    double stamp_s = 0.0;
+    cv::Size size;
+    int type = -1;
+    AmbientLayout layout = AmbientLayout::kInterleaved;
+    bool half_resolution = true;
+    int window_px = 0, pyramid_levels = 0;
+    double scale = 1.0;            // tracking image pixels per frame pixel
+    std::vector<cv::Mat> pyramid;  // cv::buildOpticalFlowPyramid's, with gradients
+  };
+  Entry entries[2];
+};
+
+// cache (optional): reuses the pyramid of a frame seen in the last call.
 AmbientEstimate compensateAmbient(double on_stamp_s, const AmbientFrame& a, const AmbientFrame& b,
                                   const AmbientCompensationParams& params = AmbientCompensationParams(),
-                                  const cv::Matx33d* motion_hint = nullptr);
+                                  const cv::Matx33d* motion_hint = nullptr, AmbientTrackingCache* cache = nullptr);
 
 // H^w for a homography near the identity (matrix logarithm and exponential,
 // normalised to det 1): the motion over a fraction w of the interval.

@@ -461,7 +461,8 @@ private:
     params.max_gap_s = 2.0 * ambient_max_gap_s_;
     params.layout = ambientLayout(format);
     params.regions = regions;  // only what the detector will read
-    const AmbientEstimate estimate = compensateAmbient(frame.header.stamp.toSec(), a, b, params);
+    const AmbientEstimate estimate =
+        compensateAmbient(frame.header.stamp.toSec(), a, b, params, nullptr, &ambient_pyramids_);
     ++(estimate.valid ? frames_compensated_ : frames_nearest_ambient_);
     if (!estimate.valid)
       NODELET_DEBUG_THROTTLE(5.0, "SpotDetector: ambient frame not compensated (%s); using the nearest",
@@ -638,6 +639,7 @@ private:
   SpotSearchPlanner planner_;
   bool mono_warned_ = false;
   cv::Mat swapped_, ambient_swapped_, ambient_swapped_b_;
+  AmbientTrackingCache ambient_pyramids_;  // each projector-off frame's tracking pyramid, built once
   sensor_msgs::ImageConstPtr ambient_msg_;
 
   std::unique_ptr<image_transport::ImageTransport> it_;

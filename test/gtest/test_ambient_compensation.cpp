@@ -140,6 +140,36 @@ TEST(AmbientCompensation, RegionsAreThoseOfTheWholeFrame)
   }
 }
 
+// A stream of on-frames between off-frames: with the cache each off-frame's
+// pyramid is built once and reused for the next on-frame; the estimates are
+// those of calls without it.
+TEST(AmbientCompensation, CachedPyramidsGiveTheSameEstimates)
+{
+  const Simulator sim(movingRig(13, 1.0));
+  FrameRequest off;
+  off.projector_on = false;
+  std::vector<AmbientFrame> offs;
+  for (int k = 0; k < 5; ++k)
+    offs.push_back({sim.render(0.4 + 2 * k * kFramePeriod, off).image, 0.4 + 2 * k * kFramePeriod});
+  AmbientTrackingCache cache;
+  for (int k = 0; k + 1 < 5; ++k)
+  {
+    const double t = 0.4 + (2 * k + 1) * kFramePeriod;
+    const AmbientEstimate plain = compensateAmbient(t, offs[k], offs[k + 1]);
+    const bool kept = k > 0 && cache.entries[1].stamp_s == offs[k].stamp_s;
+    const AmbientEstimate cached = compensateAmbient(t, offs[k], offs[k + 1], {}, nullptr, &cache);
+    ASSERT_TRUE(plain.valid && cached.valid);
+    EXPECT_EQ(k > 0, kept) << "frame " << k << ": the earlier off-frame was not kept from the last call";
+    EXPECT_EQ(cache.entries[0].stamp_s, offs[k].stamp_s);
+    EXPECT_EQ(cache.entries[1].stamp_s, offs[k + 1].stamp_s);
+    EXPECT_EQ(plain.points_used, cached.points_used) << "frame " << k;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c)
+        EXPECT_EQ(plain.motion_ab(r, c), cached.motion_ab(r, c)) << "frame " << k;
+    EXPECT_EQ(cv::norm(plain.image, cached.image, cv::NORM_INF), 0.0) << "frame " << k;
+  }
+}
+
 TEST(AmbientCompensation, FastMotion)
 {
   const Simulator sim(movingRig(5, 4.0));  // about 5 px between the ambient frames
