@@ -35,8 +35,9 @@ public:
   // endRegions, detect() is called on regions of one frame of `frame` size.
   // A method whose thresholds come from the statistics of a whole frame uses
   // those of the last whole frame it saw, and says here whether it has them
-  // (of a frame of that size, at most `max_age` region frames old); false:
-  // search the whole frame instead.
+  // (of a frame of that size, recent enough by its own rule: the fast method
+  // renews them after 30 region frames); false, with the reason: search the
+  // whole frame instead.
   virtual bool regionStatistics(bool /*with_ambient*/, PixelFormat /*format*/, const cv::Size& /*frame*/,
                                 const SpotDetectorParams& /*params*/, std::string* /*why*/) const
   {
