@@ -213,14 +213,18 @@ cv::Mat warp(const cv::Mat& img, const cv::Matx33d& H, AmbientLayout layout)
 void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv::Matx33d& Ha, const cv::Matx33d& Hb,
                   double wb, const AmbientCompensationParams& p, cv::Mat* out)
 {
+  // Unrounded: the blend in float. (Each warp still rounds to 8 bits: warping
+  // float copies measured 0.0948 px against 0.0968 px on the strobed bag's
+  // scene, for a float conversion of both whole frames per on-frame.)
+  const int depth = p.unrounded && a.depth() == CV_8U && !bayer(p.layout) ? CV_32F : a.depth();
   if (p.regions.empty() || bayer(p.layout))
   {
     const cv::Mat ia = have_motion ? warp(a, Ha, p.layout) : a;
     const cv::Mat ib = have_motion ? warp(b, Hb, p.layout) : b;
-    cv::addWeighted(ia, 1.0 - wb, ib, wb, 0.0, *out);
+    cv::addWeighted(ia, 1.0 - wb, ib, wb, 0.0, *out, depth);
     return;
   }
-  out->create(a.size(), a.type());
+  out->create(a.size(), CV_MAKETYPE(depth, a.channels()));
   const cv::Rect frame(0, 0, a.cols, a.rows);
   cv::Mat wa, wbuf;
   for (const cv::Rect& region : p.regions)
@@ -231,13 +235,13 @@ void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv
     cv::Mat dst = (*out)(r);
     if (!have_motion)
     {
-      cv::addWeighted(a(r), 1.0 - wb, b(r), wb, 0.0, dst);
+      cv::addWeighted(a(r), 1.0 - wb, b(r), wb, 0.0, dst, depth);
       continue;
     }
     const cv::Matx33d shift(1, 0, -r.x, 0, 1, -r.y, 0, 0, 1);
     cv::warpPerspective(a, wa, cv::Mat(shift * Ha), r.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
     cv::warpPerspective(b, wbuf, cv::Mat(shift * Hb), r.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-    cv::addWeighted(wa, 1.0 - wb, wbuf, wb, 0.0, dst);
+    cv::addWeighted(wa, 1.0 - wb, wbuf, wb, 0.0, dst, depth);
   }
 }
 

@@ -92,12 +92,24 @@ std::string checkImage(const cv::Mat& image, PixelFormat format, const char* wha
   return std::string();
 }
 
+// An ambient estimate kept unrounded (ambient_compensation.h,
+// AmbientCompensationParams::unrounded): CV_32F with the frame's channels,
+// for the interleaved 8-bit formats.
+bool unroundedAmbientFits(const cv::Mat& ambient, PixelFormat format)
+{
+  const bool interleaved8 = format == PixelFormat::kBgr8 || format == PixelFormat::kRgb8 ||
+                            format == PixelFormat::kBgra8 || format == PixelFormat::kRgba8 ||
+                            format == PixelFormat::kMono8;
+  return interleaved8 && ambient.depth() == CV_32F && ambient.channels() == channelCount(format);
+}
+
 std::string checkInput(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format)
 {
   std::string error = checkImage(image, format, "image");
   if (error.empty() && !ambient.empty())
   {
-    error = checkImage(ambient, format, "ambient image");
+    if (ambient.depth() != CV_32F || !unroundedAmbientFits(ambient, format))
+      error = checkImage(ambient, format, "ambient image");
     if (error.empty() && ambient.size() != image.size())
       error = "ambient image is " + std::to_string(ambient.cols) + "x" + std::to_string(ambient.rows) + ", the image " +
               std::to_string(image.cols) + "x" + std::to_string(image.rows);

@@ -70,6 +70,7 @@ private:
   // frames since.
   MatchedNoise frame_noise_;
   cv::Size noise_size_;
+  cv::Mat ambient8_;  // an unrounded ambient estimate, rounded for the threshold pass
   int noise_age_ = 0;
   bool in_regions_ = false;
 };
@@ -291,7 +292,11 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const FastParams& p = params.fast;
   StageTimer timer;
   SpotDetectorTimings tm;
-  planes_.bind(image, ambient, format, params.projector_color, p, in_regions_ ? &frame_noise_ : nullptr);
+  const bool unrounded = !ambient.empty() && ambient.depth() == CV_32F;
+  if (unrounded)
+    ambient.convertTo(ambient8_, CV_8U);  // rounded and saturated (NaN -> 0)
+  planes_.bind(image, unrounded ? ambient8_ : ambient, format, params.projector_color, p,
+               in_regions_ ? &frame_noise_ : nullptr, unrounded ? ambient : cv::Mat());
   if (!in_regions_ && planes_.matchedPath())
   {
     frame_noise_ = planes_.matchedNoise();

@@ -48,10 +48,11 @@ ColourModel colourModel(ProjectorColor color, bool colour_frame, const FastParam
 // Binding a frame.
 
 void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, ProjectorColor color,
-                       const FastParams& p, const MatchedNoise* fixed)
+                       const FastParams& p, const MatchedNoise* fixed, const cv::Mat& ambient_fine)
 {
   image_ = image;
   ambient_ = ambient;
+  ambient_fine_ = ambient.empty() ? cv::Mat() : ambient_fine;
   format_ = format;
   model_ = colourModel(color, hasColour(format), p);
   scale_ = isBayer(format) ? 2 : 1;

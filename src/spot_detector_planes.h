@@ -111,8 +111,12 @@ public:
   // fixed (valid): the matched path takes its thresholds from these
   // statistics instead of this image's (a region of a frame whose statistics
   // were measured on the whole of an earlier one; SpotDetector::detectIn).
+  // ambient_fine (optional; interleaved 8-bit colour and mono8): the ambient
+  // frame's unrounded values (CV_32F, its channels), which the windows read
+  // instead of `ambient` where finite; `ambient` is then its rounding
+  // (non-finite values: 0 in both).
   void bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, ProjectorColor color, const FastParams& p,
-            const MatchedNoise* fixed = nullptr);
+            const MatchedNoise* fixed = nullptr, const cv::Mat& ambient_fine = cv::Mat());
 
   const ColourModel& model() const { return model_; }
   bool colourPath() const { return model_.colour; }
@@ -169,7 +173,8 @@ private:
   bool fusedRowRuns(int gy, std::vector<Run>* runs, uint16_t* acc);
   void fillPixel(const cv::Mat& m, int x, int y, float* s, float* r, float* t, bool* sample, bool* clipped) const;
 
-  cv::Mat image_, ambient_;
+  cv::Mat image_, ambient_, ambient_fine_;
+  void fillFineAmbient(PlaneWindow* w) const;
   PixelFormat format_ = PixelFormat::kBgr8;
   ColourModel model_;
   int grid_cols_ = 0, grid_rows_ = 0, scale_ = 1, unit_ = 1;

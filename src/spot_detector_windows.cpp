@@ -1,6 +1,7 @@
 // The inputs layer's windows: the planes of a frame (and of its ambient
 // frame) at full resolution around a candidate (see spot_detector_planes.h).
 #include <algorithm>
+#include <cmath>
 
 #include "spot_detector_pixels.h"
 #include "spot_detector_planes.h"
@@ -142,6 +143,40 @@ bool isInterleaved(PixelFormat format)
 }
 }  // namespace
 
+// The ambient planes of a window from the unrounded estimate (bind's
+// ambient_fine), over the rounded values fillWindow read; the clipped flags
+// stay the rounded frame's. Interleaved 8-bit colour and mono8 only.
+void FramePlanes::fillFineAmbient(PlaneWindow* w) const
+{
+  if (ambient_fine_.empty() || !w->ambient)
+    return;
+  const int channels = ambient_fine_.channels();
+  int so = 0, ro = 0, to = 0;
+  if (model_.colour)
+  {
+    const pixels::Interleaved L = pixels::interleavedLayout(format_);
+    const int offset[3] = {L.r, L.g, L.b};
+    so = offset[model_.signal];
+    ro = offset[model_.reference];
+    to = offset[model_.third];
+  }
+  const int H = w->H;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const float* px = ambient_fine_.ptr<float>(w->cy + dy) + (w->cx - H) * channels;
+    const int row = w->index(-H, dy);
+    for (int k = 0; k <= 2 * H; ++k, px += channels)
+    {
+      if (std::isfinite(px[so]))
+        w->ambient_signal[row + k] = px[so];
+      if (model_.colour && std::isfinite(px[ro]))
+        w->ambient_reference[row + k] = px[ro];
+      if (model_.colour && std::isfinite(px[to]))
+        w->ambient_third[row + k] = px[to];
+    }
+  }
+}
+
 void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
 {
   w->cx = cx;
@@ -157,6 +192,7 @@ void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
     if (w->ambient)
       fillInterleaved(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
                       w->ambient_third, true);
+    fillFineAmbient(w);
     return;
   }
   if (model_.colour && isBayer(format_))
@@ -179,6 +215,7 @@ void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
       else
         fillMono<uint8_t>(m, saturation_, 1.0, cx, cy, w, s, pass == 1);
     }
+    fillFineAmbient(w);
     return;
   }
   for (int dy = -H; dy <= H; ++dy)

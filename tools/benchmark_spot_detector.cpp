@@ -195,6 +195,7 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
       return cv::Mat();
     AmbientCompensationParams ap;
     ap.regions = regions;
+    ap.unrounded = true;  // as the nodelet
     return compensateAmbient(k * period, offs[k], offs[k + 1], ap, nullptr, c).image;
   };
   SpotDetectorParams pb;

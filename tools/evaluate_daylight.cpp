@@ -61,6 +61,8 @@ struct Options
   bool full_resolution_tracking = false;  // strobed: track the ambient frames' motion at full resolution
   bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
   int detect_threshold = -1, min_peak = -1;  // >= 0: the SpotDetector's fast.detect_threshold / fast.min_peak
+  std::string output = "bgr8";               // the camera's encoding (SensorOutput)
+  bool unrounded = true;                     // strobed: the ambient estimate unrounded (CV_32F)
 };
 
 struct Stats
@@ -122,6 +124,8 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
   if (o.ratio >= 0.0)
     p.lighting.dot_to_sun_ratio = o.ratio;
   p.rock.fine_texture_period_m = o.texture_period;  // +-25 % (RockParams' default amplitude)
+  if (!sensorOutputFromEncoding(o.output, &p.sensor.output))
+    throw std::invalid_argument("--output: unknown encoding " + o.output);
   if (o.albedo > 0.0)
   {
     p.rock.albedo_min = p.rock.albedo_max = o.albedo;
@@ -202,20 +206,27 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
     // Dot frames at 15 Hz when strobing (the frames between are ambient), 30 Hz otherwise.
     const double t = 0.3 + (o.strobe ? 2.0 : 1.0) * period * k;
     const SimFrame f = sim.render(t);
-    cv::Mat image = f.image, texture = f.image;
+    cv::Mat image = f.image, texture = f.image, ambient;
     if (o.strobe)
     {
       const double t2 = o.extrapolate ? t - 3.0 * period : t + period;
       AmbientCompensationParams ap;
       ap.half_resolution_tracking = !o.full_resolution_tracking;
+      ap.unrounded = o.unrounded;
       const AmbientEstimate amb =
           compensateAmbient(t, {sim.render(t - period, off).image, t - period}, {sim.render(t2, off).image, t2}, ap);
-      texture = o.true_ambient ? sim.render(t, off).image : amb.image;
+      ambient = o.true_ambient ? sim.render(t, off).image : amb.image;
+      texture = cv::Mat();                         // not into the frame's own pixels
+      ambient.convertTo(texture, f.image.type());  // PoseDelta reads the frame's type
       if (o.difference)
-        image = difference(f.image, amb.image, o.normalise);
+        image = difference(f.image, texture, o.normalise);
     }
-    const SpotDetectionResult det = o.strobe && !o.difference ? detector.detect(image, texture, PixelFormat::kBgr8)
-                                                              : detector.detect(image, PixelFormat::kBgr8);
+    PixelFormat format = PixelFormat::kBgr8;
+    pixelFormatFromEncoding(o.output, &format);
+    const SpotDetectionResult det =
+        o.strobe && !o.difference ? detector.detect(image, ambient, format) : detector.detect(image, format);
+    if (!det.ok)
+      std::fprintf(stderr, "detector: %s\n", det.error.c_str());
     std::vector<cv::Point2d> truth;
     for (size_t b = 0; b < f.pixels.size(); ++b)
       if (f.visible[b])
@@ -326,6 +337,10 @@ int main(int argc, char** argv)
       o.true_ambient = v != "0";
     else if (k == "--difference")
       o.difference = v != "0";
+    else if (k == "--unrounded")
+      o.unrounded = v != "0";
+    else if (k == "--output")
+      o.output = v;
     else if (k == "--sweep")
       o.sweep = numbers(v);
     else

@@ -321,7 +321,11 @@ public:
   // motion-compensated to this frame's time, or a projector-off capture of
   // a static view). Its DN must be the frame's (it is subtracted): a
   // predicted albedo image must be scaled to the frame's ambient light.
-  // Empty = none (as the overload above).
+  // Empty = none (as the overload above). For bgr8/rgb8/bgra8/rgba8/mono8
+  // frames it may also be CV_32F with the frame's channels: a motion-
+  // compensated estimate kept unrounded (AmbientCompensationParams::
+  // unrounded), which the refinement reads as it is (the threshold pass
+  // reads it rounded); non-finite values read as 0.
   SpotDetectionResult detect(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format,
                              SpotDetectorDebug* debug = nullptr, SpotDetectorTimings* timings = nullptr);
   // Detection in regions of the frame only (SpotSearchPlanner::plan; empty:

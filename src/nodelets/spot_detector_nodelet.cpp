@@ -461,6 +461,7 @@ private:
     params.max_gap_s = 2.0 * ambient_max_gap_s_;
     params.layout = ambientLayout(format);
     params.regions = regions;  // only what the detector will read
+    params.unrounded = true;   // 8-bit interleaved frames: the blend as float, for the detector
     const AmbientEstimate estimate =
         compensateAmbient(frame.header.stamp.toSec(), a, b, params, nullptr, &ambient_pyramids_);
     ++(estimate.valid ? frames_compensated_ : frames_nearest_ambient_);

@@ -14,7 +14,7 @@ namespace structured_light_stabilizer
 namespace sim
 {
 
-SensorNoise::SensorNoise(const SensorParams& sc, uint32_t noise_seed, double t)
+SensorNoise::SensorNoise(const SensorParams& sc, uint32_t noise_seed, double t, uint32_t exposure)
   : table_(normalTable()),
     read_var_(static_cast<float>(sc.read_noise_dn * sc.read_noise_dn)),
     gain_(sc.shot_noise ? static_cast<float>(sc.gain_dn_per_electron) : 0.0f),
@@ -22,6 +22,11 @@ SensorNoise::SensorNoise(const SensorParams& sc, uint32_t noise_seed, double t)
 {
   uint64_t frame_state = 0x243F6A8885A308D3ull ^ (static_cast<uint64_t>(noise_seed) << 32) ^ doubleBits(t);
   frame_key_ = splitmix64(&frame_state);
+  if (exposure != 0)  // exposure 0 keeps the keys every scene was built and measured with
+  {
+    frame_state ^= 0x9E3779B97F4A7C15ull * exposure;
+    frame_key_ = splitmix64(&frame_state);
+  }
 }
 
 // n (rounded up to 5) standard normal deviates for row v of stream `key`.

@@ -15,12 +15,16 @@ namespace structured_light_stabilizer
 namespace sim
 {
 
-// Noise of one frame. The draws are seeded per (noise_seed, t, row), so rows
-// are independent and the result does not depend on the thread count.
+// Noise of one frame. The draws are seeded per (noise_seed, t, exposure,
+// row), so rows are independent and the result does not depend on the thread
+// count. `exposure` tells apart exposures rendered at one time t (0: the
+// projector-on frame, 1: the projector-off one): two exposures of a real
+// camera never share their noise, so an ambient frame rendered at an
+// on-frame's own time must not cancel the on-frame's noise.
 class SensorNoise
 {
 public:
-  SensorNoise(const SensorParams& sensor, uint32_t noise_seed, double t);
+  SensorNoise(const SensorParams& sensor, uint32_t noise_seed, double t, uint32_t exposure = 0);
 
   // False when both shot and read noise are off (applyRow would do nothing).
   bool enabled() const { return enabled_; }

@@ -292,7 +292,7 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
   if (!request.projector_on)
     probes.clear();  // no dot, nothing clipped by it
   std::sort(probes.begin(), probes.end(), [](const ClipProbe& a, const ClipProbe& b) { return a.v < b.v; });
-  const sim::SensorNoise noise(sc, params_.noise_seed, t);
+  const sim::SensorNoise noise(sc, params_.noise_seed, t, request.projector_on ? 0u : 1u);
   exposeRows({im.sampling, rock_samples, splat_rows, noise, readout, probes, sc.blooming}, &frame);
   return frame;
 }

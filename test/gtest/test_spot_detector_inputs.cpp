@@ -252,6 +252,58 @@ TEST(SpotDetectorInputs, Mono16IsMono8Scaled)
   }
 }
 
+// An ambient estimate kept unrounded (CV_32F, AmbientCompensationParams::
+// unrounded): holding the 8-bit frame's own values it gives the same spots as
+// that frame; non-finite values do no harm (they read as 0); a float ambient
+// of another channel count or for a 16-bit or Bayer frame is refused with a
+// reason.
+TEST(SpotDetectorInputs, UnroundedAmbientEstimate)
+{
+  synthetic_dots::Config cfg;
+  cfg.width = cfg.height = 320;
+  cfg.rows = cfg.cols = 5;
+  cfg.sun = 1.0;
+  cfg.ambient_frame = true;
+  cfg.seed = 6300;
+  const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+  ASSERT_EQ(f.ambient.type(), CV_8UC3);
+  SpotDetector det;
+  cv::Mat fine;
+  f.ambient.convertTo(fine, CV_32F);
+  const SpotDetectionResult a = det.detect(f.image, f.ambient, PixelFormat::kBgr8);
+  const SpotDetectionResult b = det.detect(f.image, fine, PixelFormat::kBgr8);
+  ASSERT_TRUE(a.ok && b.ok) << a.error << b.error;
+  ASSERT_EQ(a.spots.size(), f.dots.size());
+  ASSERT_EQ(b.spots.size(), a.spots.size());
+  for (size_t i = 0; i < a.spots.size(); ++i)
+  {
+    EXPECT_NEAR(a.spots[i].x, b.spots[i].x, 1e-5);
+    EXPECT_NEAR(a.spots[i].y, b.spots[i].y, 1e-5);
+  }
+  cv::Mat holed = fine.clone();
+  holed(cv::Rect(100, 100, 60, 60)).setTo(cv::Scalar::all(std::nan("")));
+  const SpotDetectionResult c = det.detect(f.image, holed, PixelFormat::kBgr8);
+  ASSERT_TRUE(c.ok) << c.error;
+  for (const Spot& s : c.spots)
+    EXPECT_TRUE(std::isfinite(s.x) && std::isfinite(s.y));
+  struct Bad
+  {
+    cv::Mat image, ambient;
+    PixelFormat format;
+  };
+  const Bad bad[] = {
+      {f.image, cv::Mat(f.image.size(), CV_32FC1, cv::Scalar(1)), PixelFormat::kBgr8},
+      {cv::Mat(64, 64, CV_16UC1, cv::Scalar(100)), cv::Mat(64, 64, CV_32FC1, cv::Scalar(1)), PixelFormat::kMono16},
+      {cv::Mat(64, 64, CV_8UC1, cv::Scalar(100)), cv::Mat(64, 64, CV_32FC1, cv::Scalar(1)), PixelFormat::kBayerRggb8},
+  };
+  for (const Bad& k : bad)
+  {
+    const SpotDetectionResult r = det.detect(k.image, k.ambient, k.format);
+    EXPECT_FALSE(r.ok) << encodingName(k.format);
+    EXPECT_NE(r.error.find("ambient"), std::string::npos) << r.error;
+  }
+}
+
 TEST(SpotDetectorInputs, BadInputIsRefusedWithAReason)
 {
   SpotDetector det;

@@ -37,7 +37,7 @@ PKG = "structured_light_stabilizer"
 INPUT_TOPICS = ["/camera/image_raw", "/camera/camera_info", "/camera/image_ambient", "/sim/ground_truth/points",
                 "/sim/ground_truth/pose_delta", "/sim/ground_truth/spots"]
 OUTPUT_TOPICS = ["/spots", "/points", "/pose_delta"]
-RECORD_S = 10
+RECORD_S = 6
 WRONG_BEAM_M = 0.02  # neighbouring beams are ~5 cm apart at 1.5 m
 
 
