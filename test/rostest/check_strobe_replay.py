@@ -1,24 +1,24 @@
 #!/usr/bin/env python3
 """A recorded bag of strobed frames through pipeline.launch source:=none
 strobe:=true (strobe_replay.test, #20 acceptance):
-1. the simulated camera, strobed (strobe_bag_source.launch: projector-on and
-   projector-off frames alternating, the rig moving, full sun, dots at ~30 %
-   of the sunlit rock, 2 cm grain), is recorded with its ground truth;
+1. the simulated camera, strobed at 30 Hz (strobe_bag_source.launch:
+   projector-on and projector-off frames alternating, the rig moving, full
+   sun, dots at ~30 % of the sunlit rock, 2 cm grain), is recorded with its
+   ground truth;
 2. the bag is replayed through replay.launch strobe:=true at half speed and
    the outputs recorded.
-Asserts against the bag's truth, with the issue's bounds where the package
-meets them: 0 wrong beams (a beam's point more than 2 cm from that beam's true
-hit point), depth RMS <= 0.1 % of z, pose <= 1.0 mm / 0.05 deg RMS with >= 90 %
-valid (reference: the first valid frame, as the replay locks it). The issue's
-recall >= 99 % and centroid <= 0.10 px are NOT met: measured 98.4-98.7 %
-(worst frame 92 %) and 0.19-0.20 px over three runs (pose 0.14 mm / 0.005 deg,
-depth 0.08 %). The limit is the motion compensation of the projector-off frames
-0.1 s away (10 Hz camera): with the true projector-off image at the frame's
-own time the core reaches 100 % and 0.080 px on this scene
-(docs/daylight.md). Bounded here at what is reached, with a margin: recall
->= 97 % pooled and >= 88 % in every frame that has a projector-off frame on
-each side (the ends of the recording may lack one: see bracketed; dots within
-3 px of their true pixel / visible dots), centroid RMS <= 0.25 px."""
+Asserts against the bag's truth, with the issue's bounds: recall >= 99 %
+pooled (dots within 3 px of their true pixel / visible dots, over the frames
+that have a projector-off frame on each side: see bracketed), 0 wrong beams
+(a beam's point more than 2 cm from that beam's true hit point), pose <= 1.0
+mm / 0.05 deg RMS with >= 90 % valid (reference: the first valid frame, as
+the replay locks it); and depth RMS <= 0.1 % of z, every frame's recall >= 95
+%. The issue's centroid <= 0.10 px is bounded at 0.12 px: measured 0.0956 px
+alone and 0.098-0.106 px in three runs under CPU load (recall 99.7 %, worst
+frame 98 %, depth 0.043-0.049 %, pose 0.14 mm / 0.005 deg). At this dot/sun
+ratio 0.10 px is the noise limit of the rig's camera rendered at 8 bits: the
+core with a projector-off frame at the on-frame's own time (its own noise)
+reaches 0.097 px on this rock (docs/daylight.md)."""
 import math
 import os
 import shutil
@@ -170,9 +170,9 @@ class StrobeReplay(unittest.TestCase):
         print("[ MEASURE ] strobed bag replay: recall %.4f (worst frame %.3f), centroid %.4f px, wrong beams %d of %d, "
               "%s" % (recall, worst, rms, wrong, compared, ", ".join("%s=%.4g" % kv for kv in sorted(acc.items()))))
         self.assertGreaterEqual(len(outputs[1]), n_on - 2, "pose deltas missing")
-        self.assertGreaterEqual(recall, 0.97)  # the issue's 0.99 is not met (see the docstring)
-        self.assertGreaterEqual(worst, 0.88)
-        self.assertLessEqual(rms, 0.25)  # the issue's 0.10 px is not met
+        self.assertGreaterEqual(recall, 0.99)
+        self.assertGreaterEqual(worst, 0.95)
+        self.assertLessEqual(rms, 0.12)  # the issue's 0.10 px: met alone, not always under load (docstring)
         self.assertEqual(wrong, 0)
         self.assertLessEqual(acc["depth_rms_percent"], 0.1)
         self.assertGreater(compared, 50 * n_on)
