@@ -130,6 +130,11 @@ inline void markCell(std::vector<Run>* runs, int y, int x)
 // scores generically). acc (may be null) accumulates the scores.
 bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
                    int k_ref, int k_third, int threshold, int gy, std::vector<Run>* runs, uint16_t* acc);
+// The matched path's signed scores of one row (FramePlanes::scoreRow's
+// values, exactly): interleaved 8-bit colour frames with an ambient frame of
+// the same type; false for the others (the caller then scores generically).
+bool colourScoreRow(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
+                    int k_ref, int k_third, int gy, int16_t* out);
 // mono8 intensity path: candidate where 16 v - level >= threshold, both
 // constant over blocks of `block` pixels (level[], threshold[] per block).
 void monoRowRuns(const uint8_t* row, int width, int y, int block, const int* level, const int* threshold,

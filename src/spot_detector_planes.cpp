@@ -79,10 +79,12 @@ void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat
 // mostly dots).
 void FramePlanes::buildMatchedScores(const FastParams& p, const MatchedNoise* fixed)
 {
-  cv::Mat raw(grid_rows_, grid_cols_, CV_16S);
+  cv::Mat& raw = matched_raw_;  // kept: no allocation per frame
+  raw.create(grid_rows_, grid_cols_, CV_16S);
   for (int gy = 0; gy < grid_rows_; ++gy)
-    scoreRow(gy, raw.ptr<int16_t>(gy));
-  cv::Mat smooth;
+    if (!rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, raw.ptr<int16_t>(gy)))
+      scoreRow(gy, raw.ptr<int16_t>(gy));
+  cv::Mat& smooth = matched_smooth_;
   raw.convertTo(smooth, CV_32F);
   cv::GaussianBlur(smooth, smooth, cv::Size(0, 0), p.matched_sigma_px / scale_);
   if (fixed)

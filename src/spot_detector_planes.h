@@ -188,7 +188,7 @@ private:
   // Matched path: the smoothed difference score per cell, in 1/kMatchedUnit
   // DN above the frame's median; the peak threshold in the same units.
   static constexpr int kMatchedUnit = 8;
-  cv::Mat matched_;
+  cv::Mat matched_, matched_raw_, matched_smooth_;
   int matched_peak_ = 0;
   MatchedNoise matched_noise_;
   void buildMatchedScores(const FastParams& p, const MatchedNoise* fixed);

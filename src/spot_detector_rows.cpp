@@ -398,6 +398,77 @@ bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat for
   }
 }
 
+namespace
+{
+// The signed colour score of (frame - ambient) per pixel, as
+// FramePlanes::scoreRow computes it: each channel's difference saturated at
+// 0 (d = max(0, c - a)), then d_s - max((k_ref d_r) >> 8, (k_third d_t) >> 8).
+// (k d) >> 8 = d (k >> 8) + (d (k & 255)) >> 8 exactly, in 16 bits for
+// k < 128 x 256 (the caller checks).
+template <int kC>
+void interleavedScores(const uint8_t* row, const uint8_t* ambient, int width, int so, int ro, int to, int k_ref,
+                       int k_third, int16_t* out)
+{
+  int x = 0;
+#if CV_SIMD128
+  const cv::v_uint16x8 ref_hi = cv::v_setall_u16(static_cast<uint16_t>(k_ref >> 8));
+  const cv::v_uint16x8 ref_lo = cv::v_setall_u16(static_cast<uint16_t>(k_ref & 255));
+  const cv::v_uint16x8 third_hi = cv::v_setall_u16(static_cast<uint16_t>(k_third >> 8));
+  const cv::v_uint16x8 third_lo = cv::v_setall_u16(static_cast<uint16_t>(k_third & 255));
+  const auto scaled = [](const cv::v_uint16x8& d, const cv::v_uint16x8& hi, const cv::v_uint16x8& lo)
+  { return cv::v_mul_wrap(d, hi) + cv::v_shr<8>(cv::v_mul_wrap(d, lo)); };
+  for (; x + 16 <= width; x += 16)
+  {
+    cv::v_uint8x16 c[4], a[4];
+    if (kC == 3)
+    {
+      cv::v_load_deinterleave(row + 3 * x, c[0], c[1], c[2]);
+      cv::v_load_deinterleave(ambient + 3 * x, a[0], a[1], a[2]);
+    }
+    else
+    {
+      cv::v_load_deinterleave(row + 4 * x, c[0], c[1], c[2], c[3]);
+      cv::v_load_deinterleave(ambient + 4 * x, a[0], a[1], a[2], a[3]);
+    }
+    cv::v_uint16x8 s[2], r[2], t[2];
+    cv::v_expand(c[so] - a[so], s[0], s[1]);  // uint8 subtraction saturates at 0
+    cv::v_expand(c[ro] - a[ro], r[0], r[1]);
+    cv::v_expand(c[to] - a[to], t[0], t[1]);
+    for (int h = 0; h < 2; ++h)
+    {
+      const cv::v_uint16x8 m = cv::v_max(scaled(r[h], ref_hi, ref_lo), scaled(t[h], third_hi, third_lo));
+      cv::v_store(out + x + 8 * h, cv::v_reinterpret_as_s16(s[h]) - cv::v_reinterpret_as_s16(m));
+    }
+  }
+#endif
+  for (; x < width; ++x)
+  {
+    const uint8_t* px = row + kC * x;
+    const uint8_t* pa = ambient + kC * x;
+    const int s = std::max(0, px[so] - pa[so]), r = std::max(0, px[ro] - pa[ro]), t = std::max(0, px[to] - pa[to]);
+    out[x] = static_cast<int16_t>(s - std::max((k_ref * r) >> 8, (k_third * t) >> 8));
+  }
+}
+}  // namespace
+
+bool colourScoreRow(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
+                    int k_ref, int k_third, int gy, int16_t* out)
+{
+  if (ambient.empty() || k_ref < 0 || k_third < 0 || k_ref >= 128 * 256 || k_third >= 128 * 256)
+    return false;
+  const bool four = format == PixelFormat::kBgra8 || format == PixelFormat::kRgba8;
+  if (!four && format != PixelFormat::kBgr8 && format != PixelFormat::kRgb8)
+    return false;
+  const pixels::Interleaved L = pixels::interleavedLayout(format);
+  const int offset[3] = {L.r, L.g, L.b};
+  const int so = offset[model.signal], ro = offset[model.reference], to = offset[model.third];
+  if (four)
+    interleavedScores<4>(image.ptr<uint8_t>(gy), ambient.ptr<uint8_t>(gy), image.cols, so, ro, to, k_ref, k_third, out);
+  else
+    interleavedScores<3>(image.ptr<uint8_t>(gy), ambient.ptr<uint8_t>(gy), image.cols, so, ro, to, k_ref, k_third, out);
+  return true;
+}
+
 void monoRowRuns(const uint8_t* row, int width, int y, int block, const int* level, const int* threshold,
                  std::vector<Run>* runs)
 {

@@ -21,6 +21,9 @@
 #include "structured_light_stabilizer/spot_detector.h"
 #include "support/spot_score.h"
 #include "support/synthetic_dots.h"
+// The inputs layer's row passes (private to the core library), for the exact
+// test of the matched path's score rows below.
+#include "../../src/spot_detector_pixels.h"
 
 using namespace structured_light_stabilizer;
 using structured_light_stabilizer::test::Score;
@@ -222,6 +225,58 @@ TEST(SpotDetectorInputs, SimdPassesAgreeWithTheirTails)
       }
     }
   }
+}
+
+// The matched path's signed score rows (rows::colourScoreRow: SIMD, 16
+// pixels at a time, and its scalar tail) against FramePlanes::scoreRow's
+// formula written out here, d = max(0, frame - ambient) per channel, score =
+// d_signal - max((k_ref d_reference) >> 8, (k_third d_third) >> 8): random
+// frames, every interleaved layout, widths 1-40 (every tail length), each
+// projector colour's channels, weights below, at and above 256; formats it
+// does not serve are declined.
+TEST(SpotDetectorInputs, MatchedScoreRowsAreExact)
+{
+  namespace fd = structured_light_stabilizer::fast_detector;
+  cv::RNG rng(6400);
+  const PixelFormat formats[] = {PixelFormat::kBgr8, PixelFormat::kRgb8, PixelFormat::kBgra8, PixelFormat::kRgba8};
+  const int channels[3][3] = {{1, 0, 2}, {0, 1, 2}, {2, 0, 1}};  // green, red, blue projectors
+  for (PixelFormat format : formats)
+    for (const auto& ch : channels)
+      for (int k : {0, 192, 256, 300, 1000, 32767})
+        for (int width = 1; width <= 40; ++width)
+        {
+          const int type = CV_8UC(channelCount(format));
+          cv::Mat image(2, width, type), ambient(2, width, type);
+          rng.fill(image, cv::RNG::UNIFORM, 0, 256);
+          rng.fill(ambient, cv::RNG::UNIFORM, 0, 256);
+          fd::ColourModel model;
+          model.signal = ch[0];
+          model.reference = ch[1];
+          model.third = ch[2];
+          const int k_third = 300 - k / 4 > 0 ? 300 - k / 4 : 0;
+          std::vector<int16_t> out(width, -1);
+          ASSERT_TRUE(fd::rows::colourScoreRow(image, ambient, format, model, k, k_third, 1, out.data()));
+          const fd::pixels::Interleaved L = fd::pixels::interleavedLayout(format);
+          const int offset[3] = {L.r, L.g, L.b};
+          for (int x = 0; x < width; ++x)
+          {
+            const uint8_t* px = image.ptr<uint8_t>(1) + L.bytes * x;
+            const uint8_t* pa = ambient.ptr<uint8_t>(1) + L.bytes * x;
+            int d[3];
+            for (int c = 0; c < 3; ++c)
+              d[c] = std::max(0, px[offset[c]] - pa[offset[c]]);
+            const int expect = d[ch[0]] - std::max((k * d[ch[1]]) >> 8, (k_third * d[ch[2]]) >> 8);
+            ASSERT_EQ(out[x], expect) << encodingName(format) << " k " << k << " width " << width << " x " << x;
+          }
+        }
+  std::vector<int16_t> out(8);
+  const cv::Mat mono(1, 8, CV_8UC1, cv::Scalar(9)), bayer(2, 8, CV_8UC1, cv::Scalar(9));
+  fd::ColourModel model;
+  EXPECT_FALSE(fd::rows::colourScoreRow(mono, mono, PixelFormat::kMono8, model, 192, 256, 0, out.data()));
+  EXPECT_FALSE(fd::rows::colourScoreRow(bayer, bayer, PixelFormat::kBayerRggb8, model, 192, 256, 0, out.data()));
+  const cv::Mat bgr(1, 8, CV_8UC3, cv::Scalar::all(9));
+  EXPECT_FALSE(fd::rows::colourScoreRow(bgr, cv::Mat(), PixelFormat::kBgr8, model, 192, 256, 0, out.data()));
+  EXPECT_FALSE(fd::rows::colourScoreRow(bgr, bgr, PixelFormat::kBgr8, model, 128 * 256, 256, 0, out.data()));
 }
 
 // A mono16 frame is read at its full depth: the same scene as mono8 x 257
