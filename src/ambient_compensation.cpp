@@ -206,6 +206,55 @@ cv::Mat warp(const cv::Mat& img, const cv::Matx33d& H, AmbientLayout layout)
   return out;
 }
 
+// Where a region's pixels come from: the inverse of the region's homography
+// M (region pixels -> source pixels), linearised about the region's centre,
+// as the 2 x 3 matrix of warpAffine's inverse map, when the linearisation
+// is within kAffineTolerancePx of the homography at the region's corners and
+// edge midpoints (a perspective map deviates from its tangent quadratically
+// away from the centre; near the identity, over a region of a hundred
+// pixels, by far less). False: use the homography.
+constexpr double kAffineTolerancePx = 0.004;
+
+bool affineInverse(const cv::Matx33d& M, const cv::Size& size, cv::Matx23d* A)
+{
+  const cv::Matx33d G = M.inv();
+  const auto apply = [&G](double x, double y)
+  {
+    const cv::Vec3d q = G * cv::Vec3d(x, y, 1.0);
+    return cv::Point2d(q[0] / q[2], q[1] / q[2]);
+  };
+  const double cx = 0.5 * (size.width - 1), cy = 0.5 * (size.height - 1);
+  const cv::Vec3d c = G * cv::Vec3d(cx, cy, 1.0);
+  if (!(std::fabs(c[2]) > 1e-12))
+    return false;
+  // Jacobian of the projective map at the centre.
+  const double w = c[2], u = c[0] / w, v = c[1] / w;
+  const double j00 = (G(0, 0) - u * G(2, 0)) / w, j01 = (G(0, 1) - u * G(2, 1)) / w;
+  const double j10 = (G(1, 0) - v * G(2, 0)) / w, j11 = (G(1, 1) - v * G(2, 1)) / w;
+  *A = cv::Matx23d(j00, j01, u - j00 * cx - j01 * cy, j10, j11, v - j10 * cx - j11 * cy);
+  const double xs[3] = {0.0, cx, size.width - 1.0}, ys[3] = {0.0, cy, size.height - 1.0};
+  for (double x : xs)
+    for (double y : ys)
+    {
+      const cv::Point2d h = apply(x, y);
+      const cv::Point2d a((*A)(0, 0) * x + (*A)(0, 1) * y + (*A)(0, 2), (*A)(1, 0) * x + (*A)(1, 1) * y + (*A)(1, 2));
+      if (!(std::hypot(h.x - a.x, h.y - a.y) <= kAffineTolerancePx))
+        return false;
+    }
+  return true;
+}
+
+// src warped by the homography M into dst (dst's size): affine where that is
+// within kAffineTolerancePx (about half the cost), else perspective.
+void warpRegion(const cv::Mat& src, const cv::Matx33d& M, const cv::Size& size, cv::Mat* dst)
+{
+  cv::Matx23d A;
+  if (affineInverse(M, size, &A))
+    cv::warpAffine(src, *dst, cv::Mat(A), size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+  else
+    cv::warpPerspective(src, *dst, cv::Mat(M), size, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+}
+
 // The frames warped along their fractions of the motion (have_motion) and
 // blended with weight wb on the second, into `out`: the whole frame, or only
 // p.regions (interleaved layouts). A region's warp is the frame's, shifted to
@@ -239,8 +288,8 @@ void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv
       continue;
     }
     const cv::Matx33d shift(1, 0, -r.x, 0, 1, -r.y, 0, 0, 1);
-    cv::warpPerspective(a, wa, cv::Mat(shift * Ha), r.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-    cv::warpPerspective(b, wbuf, cv::Mat(shift * Hb), r.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    warpRegion(a, shift * Ha, r.size(), &wa);
+    warpRegion(b, shift * Hb, r.size(), &wbuf);
     cv::addWeighted(wa, 1.0 - wb, wbuf, wb, 0.0, dst, depth);
   }
 }
