@@ -41,8 +41,8 @@ std::string checkImages(const AmbientFrame& a, const AmbientFrame& b, const Ambi
     if (f->image.empty())
       continue;
     const int t = f->image.type();
-    if (t != CV_8UC1 && t != CV_8UC3 && t != CV_8UC4 && t != CV_16UC1)
-      return "ambient images must be CV_8UC1/3/4 or CV_16UC1";
+    if (t != CV_8UC1 && t != CV_8UC3 && t != CV_8UC4 && t != CV_16UC1 && t != CV_16UC3)
+      return "ambient images must be CV_8UC1/3/4 or CV_16UC1/3";
     if (bayer(p.layout) && (f->image.channels() != 1 || f->image.cols % 2 || f->image.rows % 2))
       return "a Bayer mosaic must be one channel of even width and height";
     if (!std::isfinite(f->stamp_s))

@@ -62,6 +62,8 @@ const FormatEntry kFormats[] = {
     {PixelFormat::kBayerGrbg8, "bayer_grbg8", 1, CV_8U},
     {PixelFormat::kUyvy, "yuv422", 2, CV_8U},
     {PixelFormat::kYuyv, "yuv422_yuy2", 2, CV_8U},
+    {PixelFormat::kBgr16, "bgr16", 3, CV_16U},
+    {PixelFormat::kRgb16, "rgb16", 3, CV_16U},
 };
 
 const FormatEntry& formatEntry(PixelFormat format)
@@ -428,6 +430,13 @@ cv::Mat toBgr(const cv::Mat& image, PixelFormat format)
     cv::Mat mono;
     image.convertTo(mono, CV_8U, 1.0 / 257.0);
     cv::cvtColor(mono, out, cv::COLOR_GRAY2BGR);
+    return out;
+  }
+  if (format == PixelFormat::kBgr16 || format == PixelFormat::kRgb16)
+  {
+    image.convertTo(out, CV_8U, 1.0 / 257.0);
+    if (format == PixelFormat::kRgb16)
+      cv::cvtColor(out, out, cv::COLOR_RGB2BGR);
     return out;
   }
   for (const auto& code : kCodes)

@@ -21,7 +21,8 @@ namespace fast_detector
 namespace pixels
 {
 
-// Byte offsets of r, g, b in an interleaved pixel and its size in bytes.
+// Offsets of r, g, b in an interleaved pixel and its size, in elements
+// (bytes; 16-bit words for bgr16/rgb16).
 struct Interleaved
 {
   int r, g, b, bytes;
@@ -32,6 +33,7 @@ inline Interleaved interleavedLayout(PixelFormat format)
   switch (format)
   {
     case PixelFormat::kRgb8:
+    case PixelFormat::kRgb16:
       return {0, 1, 2, 3};
     case PixelFormat::kBgra8:
       return {2, 1, 0, 4};
@@ -82,6 +84,14 @@ void decodeCell(const cv::Mat& m, PixelFormat format, int gx, int gy, int* rgb);
 // The same for cells 0 .. n-1 of grid row gy, into out[3 gx + k].
 void decodeRow(const cv::Mat& m, PixelFormat format, int gy, int n, int* out);
 
+// A 16-bit colour sample in whole 8-bit DN (v / 257, rounded): the
+// threshold pass of bgr16/rgb16 runs in DN like the 8-bit formats; the
+// windows read the samples at full depth (FramePlanes::fillPixel).
+inline int dn16(int v)
+{
+  return (v + 128) / 257;
+}
+
 // Intensity of a cell in 1/16 DN: mono 16 v (mono16: 16 v / 257), colour
 // 16 (r + 2 g + b) / 4.
 inline int intensity16(PixelFormat format, const int* rgb)
@@ -130,9 +140,10 @@ inline void markCell(std::vector<Run>* runs, int y, int x)
 // scores generically). acc (may be null) accumulates the scores.
 bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
                    int k_ref, int k_third, int threshold, int gy, std::vector<Run>* runs, uint16_t* acc);
-// The matched path's signed scores of one row (FramePlanes::scoreRow's
+// The colour path's signed scores of one row (FramePlanes::scoreRow's
 // values, exactly): interleaved 8-bit colour frames with an ambient frame of
-// the same type; false for the others (the caller then scores generically).
+// the same type (SIMD), 16-bit colour frames with or without one; false for
+// the others (the caller then scores generically).
 bool colourScoreRow(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
                     int k_ref, int k_third, int gy, int16_t* out);
 // mono8 intensity path: candidate where 16 v - level >= threshold, both

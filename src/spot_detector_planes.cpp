@@ -82,7 +82,8 @@ void FramePlanes::buildMatchedScores(const FastParams& p, const MatchedNoise* fi
   cv::Mat& raw = matched_raw_;  // kept: no allocation per frame
   raw.create(grid_rows_, grid_cols_, CV_16S);
   for (int gy = 0; gy < grid_rows_; ++gy)
-    if (!rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, raw.ptr<int16_t>(gy)))
+    if (!model_.colour ||
+        !rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, raw.ptr<int16_t>(gy)))
       scoreRow(gy, raw.ptr<int16_t>(gy));
   cv::Mat& smooth = matched_smooth_;
   raw.convertTo(smooth, CV_32F);
@@ -198,7 +199,10 @@ int FramePlanes::scoreAt(int gx, int gy) const
 void FramePlanes::scoreRow(int gy, int16_t* out) const
 {
   const int n = grid_cols_;
-  std::vector<int> c(3 * static_cast<size_t>(n)), a;
+  std::vector<int>& c = decoded_;  // scratch kept across rows and frames
+  std::vector<int>& a = decoded_ambient_;
+  c.resize(3 * static_cast<size_t>(n));
+  a.clear();
   pixels::decodeRow(image_, format_, gy, n, c.data());
   if (!ambient_.empty())
   {
@@ -240,7 +244,8 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
   if (fusedRowRuns(gy, runs, acc))
     return;
   int16_t* s = row_scores_.data();
-  scoreRow(gy, s);
+  if (!model_.colour || !rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, s))
+    scoreRow(gy, s);
   for (int gx = 0; gx < grid_cols_; ++gx)
   {
     if (acc)

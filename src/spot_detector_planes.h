@@ -194,6 +194,7 @@ private:
   void buildMatchedScores(const FastParams& p, const MatchedNoise* fixed);
   MatchedNoise sampledNoise(const cv::Mat& smooth) const;
   std::vector<int16_t> row_scores_;
+  mutable std::vector<int> decoded_, decoded_ambient_;  // scoreRow's scratch (one FramePlanes per thread)
 };
 
 }  // namespace fast_detector

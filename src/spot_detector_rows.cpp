@@ -60,6 +60,14 @@ void decodeCell(const cv::Mat& m, PixelFormat format, int gx, int gy, int* rgb)
     return;
   }
   const Interleaved L = interleavedLayout(format);
+  if (format == PixelFormat::kBgr16 || format == PixelFormat::kRgb16)
+  {
+    const uint16_t* px = m.ptr<uint16_t>(gy) + gx * L.bytes;
+    rgb[0] = dn16(px[L.r]);
+    rgb[1] = dn16(px[L.g]);
+    rgb[2] = dn16(px[L.b]);
+    return;
+  }
   const uint8_t* px = m.ptr<uint8_t>(gy) + gx * L.bytes;
   rgb[0] = px[L.r];
   rgb[1] = px[L.g];
@@ -87,6 +95,18 @@ void decodeRow(const cv::Mat& m, PixelFormat format, int gy, int n, int* out)
       out[3 * gx] = px[L.r];
       out[3 * gx + 1] = px[L.g];
       out[3 * gx + 2] = px[L.b];
+    }
+    return;
+  }
+  if (format == PixelFormat::kBgr16 || format == PixelFormat::kRgb16)
+  {
+    const Interleaved L = interleavedLayout(format);
+    const uint16_t* px = m.ptr<uint16_t>(gy);
+    for (int gx = 0; gx < n; ++gx, px += L.bytes)
+    {
+      out[3 * gx] = dn16(px[L.r]);
+      out[3 * gx + 1] = dn16(px[L.g]);
+      out[3 * gx + 2] = dn16(px[L.b]);
     }
     return;
   }
@@ -449,12 +469,72 @@ void interleavedScores(const uint8_t* row, const uint8_t* ambient, int width, in
     out[x] = static_cast<int16_t>(s - std::max((k_ref * r) >> 8, (k_third * t) >> 8));
   }
 }
+// The same for 16-bit colour (bgr16, rgb16; ambient may be null), each
+// sample in whole DN (pixels::dn16) as decodeRow gives it.
+void interleavedScores16(const uint16_t* row, const uint16_t* ambient, int width, int so, int ro, int to, int k_ref,
+                         int k_third, int16_t* out)
+{
+  int x = 0;
+#if CV_SIMD128
+  // dn16(v) = (v + 128) / 257 = (y - (y >> 8)) >> 8 with y = v + 128
+  // saturated at 65535: exact for every 16-bit v (checked exhaustively).
+  const cv::v_uint16x8 half = cv::v_setall_u16(128);
+  const auto dn = [&half](const cv::v_uint16x8& v)
+  {
+    const cv::v_uint16x8 y = v + half;  // saturating
+    return cv::v_shr<8>(y - cv::v_shr<8>(y));
+  };
+  const cv::v_uint16x8 ref_hi = cv::v_setall_u16(static_cast<uint16_t>(k_ref >> 8));
+  const cv::v_uint16x8 ref_lo = cv::v_setall_u16(static_cast<uint16_t>(k_ref & 255));
+  const cv::v_uint16x8 third_hi = cv::v_setall_u16(static_cast<uint16_t>(k_third >> 8));
+  const cv::v_uint16x8 third_lo = cv::v_setall_u16(static_cast<uint16_t>(k_third & 255));
+  for (; x + 8 <= width; x += 8)
+  {
+    cv::v_uint16x8 c[3], a[3];
+    cv::v_load_deinterleave(row + 3 * x, c[0], c[1], c[2]);
+    for (int k = 0; k < 3; ++k)
+      c[k] = dn(c[k]);
+    if (ambient)
+    {
+      cv::v_load_deinterleave(ambient + 3 * x, a[0], a[1], a[2]);
+      for (int k = 0; k < 3; ++k)
+        c[k] = c[k] - dn(a[k]);  // saturating at 0
+    }
+    const cv::v_uint16x8 r = cv::v_mul_wrap(c[ro], ref_hi) + cv::v_shr<8>(cv::v_mul_wrap(c[ro], ref_lo));
+    const cv::v_uint16x8 t = cv::v_mul_wrap(c[to], third_hi) + cv::v_shr<8>(cv::v_mul_wrap(c[to], third_lo));
+    cv::v_store(out + x, cv::v_reinterpret_as_s16(c[so]) - cv::v_reinterpret_as_s16(cv::v_max(r, t)));
+  }
+#endif
+  for (; x < width; ++x)
+  {
+    const uint16_t* px = row + 3 * x;
+    int s = pixels::dn16(px[so]), r = pixels::dn16(px[ro]), t = pixels::dn16(px[to]);
+    if (ambient)
+    {
+      const uint16_t* pa = ambient + 3 * x;
+      s = std::max(0, s - pixels::dn16(pa[so]));
+      r = std::max(0, r - pixels::dn16(pa[ro]));
+      t = std::max(0, t - pixels::dn16(pa[to]));
+    }
+    out[x] = static_cast<int16_t>(s - std::max((k_ref * r) >> 8, (k_third * t) >> 8));
+  }
+}
 }  // namespace
 
 bool colourScoreRow(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
                     int k_ref, int k_third, int gy, int16_t* out)
 {
-  if (ambient.empty() || k_ref < 0 || k_third < 0 || k_ref >= 128 * 256 || k_third >= 128 * 256)
+  if (k_ref < 0 || k_third < 0 || k_ref >= 128 * 256 || k_third >= 128 * 256)
+    return false;
+  if (format == PixelFormat::kBgr16 || format == PixelFormat::kRgb16)
+  {
+    const pixels::Interleaved L = pixels::interleavedLayout(format);
+    const int offset[3] = {L.r, L.g, L.b};
+    interleavedScores16(image.ptr<uint16_t>(gy), ambient.empty() ? nullptr : ambient.ptr<uint16_t>(gy), image.cols,
+                        offset[model.signal], offset[model.reference], offset[model.third], k_ref, k_third, out);
+    return true;
+  }
+  if (ambient.empty())
     return false;
   const bool four = format == PixelFormat::kBgra8 || format == PixelFormat::kRgba8;
   if (!four && format != PixelFormat::kBgr8 && format != PixelFormat::kRgb8)

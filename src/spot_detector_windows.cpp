@@ -43,6 +43,22 @@ void FramePlanes::fillPixel(const cv::Mat& m, int x, int y, float* s, float* r, 
     *t = static_cast<float>(pixels::bayerChannel(m, format_, x, y, model_.third));
     return;
   }
+  if (format_ == PixelFormat::kBgr16 || format_ == PixelFormat::kRgb16)
+  {
+    const pixels::Interleaved L = pixels::interleavedLayout(format_);
+    const uint16_t* px = m.ptr<uint16_t>(y) + x * L.bytes;
+    const float rgb16[3] = {px[L.r] / 257.0f, px[L.g] / 257.0f, px[L.b] / 257.0f};  // DN, at full depth
+    *clipped = px[0] >= 257 * saturation_ || px[1] >= 257 * saturation_ || px[2] >= 257 * saturation_;
+    if (!model_.colour)
+    {
+      *s = 0.25f * (rgb16[0] + 2.0f * rgb16[1] + rgb16[2]);
+      return;
+    }
+    *s = rgb16[model_.signal];
+    *r = rgb16[model_.reference];
+    *t = rgb16[model_.third];
+    return;
+  }
   int rgb[3];
   pixels::decodeCell(m, format_, x, y, rgb);
   *clipped = rgb[0] >= saturation_ || rgb[1] >= saturation_ || rgb[2] >= saturation_;

@@ -62,6 +62,7 @@ struct Options
   bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
   int detect_threshold = -1, min_peak = -1;  // >= 0: the SpotDetector's fast.detect_threshold / fast.min_peak
   std::string output = "bgr8";               // the camera's encoding (SensorOutput)
+  int output_bits = 16;                      // 16-bit outputs: the converter's bits
   bool unrounded = true;                     // strobed: the ambient estimate unrounded (CV_32F)
 };
 
@@ -126,6 +127,7 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
   p.rock.fine_texture_period_m = o.texture_period;  // +-25 % (RockParams' default amplitude)
   if (!sensorOutputFromEncoding(o.output, &p.sensor.output))
     throw std::invalid_argument("--output: unknown encoding " + o.output);
+  p.sensor.output_bits = o.output_bits;
   if (o.albedo > 0.0)
   {
     p.rock.albedo_min = p.rock.albedo_max = o.albedo;
@@ -247,7 +249,10 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
     in.rows = sim.projector().rows;
     in.cols = sim.projector().cols;
     in.points = tr.points;
-    in.image = texture;
+    if (texture.depth() == CV_16U)
+      texture.convertTo(in.image, CV_8U, 1.0 / 257.0);  // as the PoseDelta nodelet converts it (cv_bridge)
+    else
+      in.image = texture;
     const PoseDeltaResult r = pose.process(in);
     if (k == 0)
     {
@@ -341,6 +346,8 @@ int main(int argc, char** argv)
       o.unrounded = v != "0";
     else if (k == "--output")
       o.output = v;
+    else if (k == "--output-bits")
+      o.output_bits = std::atoi(v.c_str());
     else if (k == "--sweep")
       o.sweep = numbers(v);
     else

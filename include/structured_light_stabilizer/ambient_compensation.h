@@ -10,7 +10,7 @@
 // interval where the on-frame lies, each frame warped there and the two
 // blended. The SpotDetector subtracts it from the on-frame (~strobe).
 //
-// Contract: images of one size and type, CV_8UC1/3/4 or CV_16UC1 (Bayer
+// Contract: images of one size and type, CV_8UC1/3/4 or CV_16UC1/3 (Bayer
 // mosaics: set AmbientCompensationParams::layout; each colour phase is
 // warped on its own sites). Stamps in seconds (any epoch, the same for all).
 // Never throws on bad input: valid = false and status says why. Pure

@@ -2,8 +2,9 @@
 // (docs/spot_detector.md).
 //
 // Contract: detect() takes one frame in any encoding a ROS camera driver
-// sends for this use (PixelFormat: bgr8/rgb8/bgra8/rgba8, mono8, mono16, the
-// four 8-bit Bayer patterns, yuv422 UYVY and YUYV; any row step, ROIs
+// sends for this use (PixelFormat: bgr8/rgb8/bgra8/rgba8, bgr16/rgb16,
+// mono8, mono16, the four 8-bit Bayer patterns, yuv422 UYVY and YUYV; any
+// row step, ROIs
 // welcome) and, optionally, an ambient frame of the same format and size
 // (projector off, aligned to this frame: strobed daylight operation, or a
 // projector-off capture of a calibration view). It returns the dots found as
@@ -66,6 +67,8 @@ enum class PixelFormat
   kBayerGrbg8,
   kUyvy,
   kYuyv,
+  kBgr16,  // a colour camera of more than 8 bits (12-bit converters, MSB-aligned)
+  kRgb16,
 };
 
 // Parses a sensor_msgs/image_encodings name ("bgr8", "bayer_rggb8", "mono16",

@@ -114,7 +114,8 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
 // The projector's colour and the sensor's output (docs/simulator.md,
 // "Colours and sensor outputs"): ~projector_color (green | red | blue | nir |
 // white; its nominal wavelength unless ~projector_wavelength), ~sensor_output
-// (an image encoding), ~blooming (none | column), ~full_well (DN), and the
+// (an image encoding) and ~sensor_output_bits (16-bit outputs: the
+// converter's bits), ~blooming (none | column), ~full_well (DN), and the
 // motion blur's ~exposure_time (s, 0 = off) and ~exposure_samples.
 void readColourAndSensorParams(const ros::NodeHandle& pnh, const ParamReader& read,
                                const std::function<void(const std::string&)>& error, SimulatorParams* c)
@@ -127,7 +128,9 @@ void readColourAndSensorParams(const ros::NodeHandle& pnh, const ParamReader& re
   const std::string output = pnh.param<std::string>("sensor_output", "bgr8");
   if (!sensorOutputFromEncoding(output, &c->sensor.output))
     error("unknown ~sensor_output '" + output +
-          "' (bgr8 | rgb8 | mono8 | mono16 | bayer_rggb8 | bayer_bggr8 | bayer_gbrg8 | bayer_grbg8); using 'bgr8'");
+          "' (bgr8 | rgb8 | bgr16 | rgb16 | mono8 | mono16 | bayer_rggb8 | bayer_bggr8 | bayer_gbrg8 | "
+          "bayer_grbg8); using 'bgr8'");
+  read.integer("sensor_output_bits", &c->sensor.output_bits);
   const std::string blooming = pnh.param<std::string>("blooming", "none");
   if (blooming == "column")
     c->sensor.blooming = Blooming::kColumn;

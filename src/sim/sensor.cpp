@@ -85,11 +85,14 @@ void quantizeRow(const float* L, int n, uint8_t* out)
 }
 
 SensorReadout::SensorReadout(const SensorParams& sensor, const float mono_weights[3])
-  : colour_(sensor.output == SensorOutput::kBgr8 || sensor.output == SensorOutput::kRgb8),
+  : colour_(sensor.output == SensorOutput::kBgr8 || sensor.output == SensorOutput::kRgb8 ||
+            sensor.output == SensorOutput::kBgr16 || sensor.output == SensorOutput::kRgb16),
     mono_(isMonochrome(sensor.output)),
     bayer_on_(isBayer(sensor.output)),
-    swap_rb_(sensor.output == SensorOutput::kRgb8),
-    sixteen_(sensor.output == SensorOutput::kMono16),
+    swap_rb_(sensor.output == SensorOutput::kRgb8 || sensor.output == SensorOutput::kRgb16),
+    sixteen_(sensor.output == SensorOutput::kMono16 || sensor.output == SensorOutput::kBgr16 ||
+             sensor.output == SensorOutput::kRgb16),
+    step_(1 << (16 - std::min(16, std::max(8, sensor.output_bits)))),
     charge_path_(sensor.blooming != Blooming::kNone || sensor.full_well_dn < 255.0),
     full_well_(static_cast<float>(sensor.full_well_dn)),
     w_{mono_weights[0], mono_weights[1], mono_weights[2]},
@@ -117,7 +120,7 @@ SensorReadout::SensorReadout(const SensorParams& sensor, const float mono_weight
 
 int SensorReadout::imageType() const
 {
-  return colour_ ? CV_8UC3 : (sixteen_ ? CV_16UC1 : CV_8UC1);
+  return CV_MAKETYPE(sixteen_ ? CV_16U : CV_8U, colour_ ? 3 : 1);
 }
 
 float* SensorReadout::record(int v, int width, float* L, float* S) const
@@ -147,9 +150,20 @@ void SensorReadout::write(int v, const float* S, cv::Mat* image) const
   const int n = colour_ ? 3 * image->cols : image->cols;
   if (sixteen_)
   {
-    // The 8-bit range (and so the default full well) over the 16 bits.
-    cv::Mat(1, n, CV_32F, const_cast<float*>(S))
-        .convertTo(cv::Mat(1, n, CV_16U, image->ptr<uint16_t>(v)), CV_16U, 257.0);
+    // The 8-bit range (and so the default full well) over the 16 bits, in
+    // the converter's steps.
+    uint16_t* out = image->ptr<uint16_t>(v);
+    if (step_ == 1)
+      cv::Mat(1, n, CV_32F, const_cast<float*>(S)).convertTo(cv::Mat(1, n, CV_16U, out), CV_16U, 257.0);
+    else
+    {
+      const int top = 65535 / step_;  // the converter's largest code (4095 at 12 bits)
+      for (int i = 0; i < n; ++i)
+        out[i] = static_cast<uint16_t>(std::min(top, std::max(0, cvRound(S[i] * (257.0f / step_)))) * step_);
+    }
+    if (swap_rb_)
+      for (int u = 0; u < image->cols; ++u)
+        std::swap(out[3 * u], out[3 * u + 2]);
     return;
   }
   uint8_t* out = image->ptr<uint8_t>(v);

@@ -64,7 +64,8 @@ public:
   // The OpenCV type of the image and of SimFrame::linear.
   int imageType() const;
   int linearType() const { return mono_ ? CV_32FC1 : CV_32FC3; }
-  // Values per row of the recorded signal: 3 * width (bgr8, rgb8) or width.
+  // Values per row of the recorded signal: 3 * width (bgr8, rgb8, bgr16,
+  // rgb16) or width.
   int samplesPerRow(int width) const { return colour_ ? 3 * width : width; }
   // True when the charge must be clipped or bloomed between the shot and
   // the read noise (full well below the 8-bit range, or blooming on).
@@ -84,7 +85,9 @@ public:
   void write(int v, const float* S, cv::Mat* image) const;
 
 private:
-  bool colour_, mono_, bayer_on_, swap_rb_, sixteen_, charge_path_;
+  bool colour_, mono_, bayer_on_, swap_rb_, sixteen_;
+  int step_;  // 16-bit outputs: the converter's step in 16-bit units
+  bool charge_path_;
   float full_well_;
   float w_[3];
   int bayer_[4];  // channel at (u & 1, v & 1): index (v & 1) * 2 + (u & 1)

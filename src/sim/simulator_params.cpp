@@ -43,6 +43,8 @@ void checkSensor(const SensorParams& sensor, std::ostringstream& why)
         << sensor.exposure_samples << " in [1, 64]; ";
   if (!(sensor.full_well_dn >= 1.0 && sensor.full_well_dn <= 1e6))
     why << "full_well_dn " << sensor.full_well_dn << " is outside [1, 1e6]; ";
+  if (sensor.output_bits < 8 || sensor.output_bits > 16)
+    why << "output_bits " << sensor.output_bits << " is outside [8, 16]; ";
 }
 
 void checkRock(const RockParams& rock, std::ostringstream& why)
@@ -217,7 +219,9 @@ constexpr OutputName kOutputs[] = {{SensorOutput::kBgr8, "bgr8"},
                                    {SensorOutput::kBayerRggb8, "bayer_rggb8"},
                                    {SensorOutput::kBayerBggr8, "bayer_bggr8"},
                                    {SensorOutput::kBayerGbrg8, "bayer_gbrg8"},
-                                   {SensorOutput::kBayerGrbg8, "bayer_grbg8"}};
+                                   {SensorOutput::kBayerGrbg8, "bayer_grbg8"},
+                                   {SensorOutput::kBgr16, "bgr16"},
+                                   {SensorOutput::kRgb16, "rgb16"}};
 
 }  // namespace
 

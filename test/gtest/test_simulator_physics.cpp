@@ -565,6 +565,75 @@ TEST(SimulatorPhysics, MonoOutputsSumTheSunlitBands)
   }
 }
 
+// bgr16 / rgb16 (a colour camera of more than 8 bits): each channel is
+// 257 x the linear DN rounded to the converter's steps (12 bits: multiples of
+// 16, within 8 of the linear value), rgb16 the same with R and B swapped; the
+// noise is the 8-bit output's without its rounding: measured against the
+// linear truth, 12 bits add 16^2 / 12 (16-bit units), 8 bits 257^2 / 12.
+TEST(SimulatorPhysics, SixteenBitColourOutputsKeepTheirConvertersSteps)
+{
+  sls::SimulatorParams c = plainNoiseFree();
+  c.sensor.output = sls::SensorOutput::kBgr16;
+  c.sensor.output_bits = 12;
+  c.keep_linear = true;
+  const sls::SimFrame f = sls::Simulator(c).render(0.0);
+  ASSERT_EQ(f.image.type(), CV_16UC3);
+  ASSERT_EQ(f.encoding, "bgr16");
+  int checked = 0;
+  for (int v = 10; v < f.image.rows - 10; v += 7)
+    for (int u = 10; u < f.image.cols - 10; u += 11)
+    {
+      const cv::Vec3w px = f.image.at<cv::Vec3w>(v, u);
+      const cv::Vec3f lin = f.linear.at<cv::Vec3f>(v, u);
+      for (int ch = 0; ch < 3; ++ch)
+      {
+        EXPECT_EQ(px[ch] % 16, 0);
+        if (257.0 * lin[ch] < 65520.0)  // below the largest code, 4095 x 16
+          EXPECT_NEAR(px[ch], 257.0 * lin[ch], 8.01) << v << "," << u << " channel " << ch;
+        else
+          EXPECT_EQ(px[ch], 65520);
+        ++checked;
+      }
+    }
+  EXPECT_GT(checked, 1000);
+  sls::SimulatorParams rgb = c;
+  rgb.sensor.output = sls::SensorOutput::kRgb16;
+  const sls::SimFrame fr = sls::Simulator(rgb).render(0.0);
+  ASSERT_EQ(fr.encoding, "rgb16");
+  cv::Mat swapped;
+  cv::cvtColor(fr.image, swapped, cv::COLOR_RGB2BGR);
+  EXPECT_EQ(cv::norm(swapped, f.image, cv::NORM_INF), 0.0);
+  // With noise: the residual against the linear truth, 12 bits against 8.
+  sls::SimulatorParams noisy = sls::studySimulatorParams();
+  noisy.lighting.sun_level = 1.0;
+  noisy.keep_linear = true;
+  double var[2];
+  for (int k = 0; k < 2; ++k)
+  {
+    noisy.sensor.output = k ? sls::SensorOutput::kBgr8 : sls::SensorOutput::kBgr16;
+    noisy.sensor.output_bits = 12;
+    const sls::SimFrame g = sls::Simulator(noisy).render(0.0);
+    double sum2 = 0.0, shot = 0.0;
+    int n = 0;
+    for (int v = 200; v < 800; v += 3)
+      for (int u = 200; u < 800; u += 3)
+      {
+        const double lin = g.linear.at<cv::Vec3f>(v, u)[2];
+        const double dn = k ? g.image.at<cv::Vec3b>(v, u)[2] : g.image.at<cv::Vec3w>(v, u)[2] / 257.0;
+        sum2 += (dn - lin) * (dn - lin);
+        shot += lin * noisy.sensor.gain_dn_per_electron;
+        ++n;
+      }
+    var[k] = sum2 / n;
+    const double rounding = k ? 1.0 / 12.0 : std::pow(16.0 / 257.0, 2) / 12.0;
+    const double predicted = shot / n + noisy.sensor.read_noise_dn * noisy.sensor.read_noise_dn + rounding;
+    std::cout << "[ MEASURE ] red noise, " << (k ? "bgr8" : "bgr16 at 12 bits") << ": " << std::sqrt(var[k])
+              << " DN (predicted " << std::sqrt(predicted) << ")\n";
+    EXPECT_NEAR(std::sqrt(var[k]), std::sqrt(predicted), 0.05 * std::sqrt(predicted));
+  }
+  EXPECT_LT(var[0], var[1]);
+}
+
 TEST(SimulatorPhysics, ProjectorColoursReachTheChannelsTheyShould)
 {
   // The dot's added light per channel follows its colour: on a uniform

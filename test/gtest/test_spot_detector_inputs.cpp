@@ -16,6 +16,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
@@ -104,6 +105,8 @@ TEST(SpotDetectorInputs, SimulatorInputKinds)
       // reference (green) is interpolated and scaled by the rock's r/g of
       // about 1.8, which carries its noise into the centroid.
       {"bayer_rggb8, red projector", "bayer_rggb8", ProjectorColor::kRed, 0.5, 0.14},
+      {"bgr16, green", "bgr16", ProjectorColor::kGreen, 0.5, 0.10},
+      {"rgb16, green, full sun", "rgb16", ProjectorColor::kGreen, 1.0, 0.10},
   };
   uint32_t seed = 3400;
   for (const Kind& k : kinds)
@@ -227,48 +230,58 @@ TEST(SpotDetectorInputs, SimdPassesAgreeWithTheirTails)
   }
 }
 
-// The matched path's signed score rows (rows::colourScoreRow: SIMD, 16
+// The colour path's signed score rows (rows::colourScoreRow: SIMD, 8 or 16
 // pixels at a time, and its scalar tail) against FramePlanes::scoreRow's
-// formula written out here, d = max(0, frame - ambient) per channel, score =
-// d_signal - max((k_ref d_reference) >> 8, (k_third d_third) >> 8): random
-// frames, every interleaved layout, widths 1-40 (every tail length), each
-// projector colour's channels, weights below, at and above 256; formats it
-// does not serve are declined.
-TEST(SpotDetectorInputs, MatchedScoreRowsAreExact)
+// formula written out here, d = max(0, frame - ambient) per channel (16-bit
+// samples in whole DN, (v + 128) / 257), score = d_signal - max((k_ref
+// d_reference) >> 8, (k_third d_third) >> 8): random frames, every
+// interleaved layout (bgr16/rgb16 also without an ambient frame), widths
+// 1-40 (every tail length), each projector colour's channels, weights below,
+// at and above 256; what it does not serve is declined.
+TEST(SpotDetectorInputs, ColourScoreRowsAreExact)
 {
   namespace fd = structured_light_stabilizer::fast_detector;
   cv::RNG rng(6400);
-  const PixelFormat formats[] = {PixelFormat::kBgr8, PixelFormat::kRgb8, PixelFormat::kBgra8, PixelFormat::kRgba8};
+  const PixelFormat formats[] = {PixelFormat::kBgr8,  PixelFormat::kRgb8,  PixelFormat::kBgra8,
+                                 PixelFormat::kRgba8, PixelFormat::kBgr16, PixelFormat::kRgb16};
   const int channels[3][3] = {{1, 0, 2}, {0, 1, 2}, {2, 0, 1}};  // green, red, blue projectors
   for (PixelFormat format : formats)
-    for (const auto& ch : channels)
-      for (int k : {0, 192, 256, 300, 1000, 32767})
-        for (int width = 1; width <= 40; ++width)
-        {
-          const int type = CV_8UC(channelCount(format));
-          cv::Mat image(2, width, type), ambient(2, width, type);
-          rng.fill(image, cv::RNG::UNIFORM, 0, 256);
-          rng.fill(ambient, cv::RNG::UNIFORM, 0, 256);
-          fd::ColourModel model;
-          model.signal = ch[0];
-          model.reference = ch[1];
-          model.third = ch[2];
-          const int k_third = 300 - k / 4 > 0 ? 300 - k / 4 : 0;
-          std::vector<int16_t> out(width, -1);
-          ASSERT_TRUE(fd::rows::colourScoreRow(image, ambient, format, model, k, k_third, 1, out.data()));
-          const fd::pixels::Interleaved L = fd::pixels::interleavedLayout(format);
-          const int offset[3] = {L.r, L.g, L.b};
-          for (int x = 0; x < width; ++x)
+    for (bool with_ambient : {true, false})
+      for (const auto& ch : channels)
+        for (int k : {0, 192, 256, 300, 1000, 32767})
+          for (int width = 1; width <= 40; ++width)
           {
-            const uint8_t* px = image.ptr<uint8_t>(1) + L.bytes * x;
-            const uint8_t* pa = ambient.ptr<uint8_t>(1) + L.bytes * x;
-            int d[3];
-            for (int c = 0; c < 3; ++c)
-              d[c] = std::max(0, px[offset[c]] - pa[offset[c]]);
-            const int expect = d[ch[0]] - std::max((k * d[ch[1]]) >> 8, (k_third * d[ch[2]]) >> 8);
-            ASSERT_EQ(out[x], expect) << encodingName(format) << " k " << k << " width " << width << " x " << x;
+            const bool wide = matDepth(format) == CV_16U;
+            if (!wide && !with_ambient)
+              continue;  // 8-bit frames without an ambient frame: the SIMD threshold pass (colourRowRuns)
+            const int type = CV_MAKETYPE(matDepth(format), channelCount(format));
+            cv::Mat image(2, width, type), ambient(2, width, type);
+            rng.fill(image, cv::RNG::UNIFORM, 0, wide ? 65536 : 256);
+            rng.fill(ambient, cv::RNG::UNIFORM, 0, wide ? 65536 : 256);
+            fd::ColourModel model;
+            model.signal = ch[0];
+            model.reference = ch[1];
+            model.third = ch[2];
+            const int k_third = 300 - k / 4 > 0 ? 300 - k / 4 : 0;
+            std::vector<int16_t> out(width, -1);
+            ASSERT_TRUE(fd::rows::colourScoreRow(image, with_ambient ? ambient : cv::Mat(), format, model, k, k_third,
+                                                 1, out.data()));
+            const fd::pixels::Interleaved L = fd::pixels::interleavedLayout(format);
+            const int offset[3] = {L.r, L.g, L.b};
+            const auto sample = [&](const cv::Mat& m, int x, int c)
+            {
+              return wide ? (m.ptr<uint16_t>(1)[L.bytes * x + offset[c]] + 128) / 257
+                          : m.ptr<uint8_t>(1)[L.bytes * x + offset[c]];
+            };
+            for (int x = 0; x < width; ++x)
+            {
+              int d[3];
+              for (int c = 0; c < 3; ++c)
+                d[c] = std::max(0, sample(image, x, c) - (with_ambient ? sample(ambient, x, c) : 0));
+              const int expect = d[ch[0]] - std::max((k * d[ch[1]]) >> 8, (k_third * d[ch[2]]) >> 8);
+              ASSERT_EQ(out[x], expect) << encodingName(format) << " k " << k << " width " << width << " x " << x;
+            }
           }
-        }
   std::vector<int16_t> out(8);
   const cv::Mat mono(1, 8, CV_8UC1, cv::Scalar(9)), bayer(2, 8, CV_8UC1, cv::Scalar(9));
   fd::ColourModel model;
@@ -359,6 +372,46 @@ TEST(SpotDetectorInputs, UnroundedAmbientEstimate)
   }
 }
 
+// bgr16 and rgb16 (a colour camera of more than 8 bits) are read at their
+// full depth: the same scene as bgr8 x 257 gives the same spots, with and
+// without an ambient frame; a 12-bit rendering of a strobed scene (steps of
+// 16/257 DN) keeps every dot.
+TEST(SpotDetectorInputs, Colour16IsColour8Scaled)
+{
+  synthetic_dots::Config cfg;
+  cfg.width = cfg.height = 320;
+  cfg.rows = cfg.cols = 5;
+  cfg.sun = 1.0;
+  cfg.ambient_frame = true;
+  cfg.seed = 6500;
+  const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+  SpotDetector det;
+  for (bool ambient : {false, true})
+  {
+    const Spots a = det.detect(f.image, ambient ? f.ambient : cv::Mat(), PixelFormat::kBgr8).spots;
+    ASSERT_EQ(a.size(), f.dots.size());
+    for (PixelFormat wide_format : {PixelFormat::kBgr16, PixelFormat::kRgb16})
+    {
+      cv::Mat wide, wide_ambient;
+      f.image.convertTo(wide, CV_16U, 257.0);
+      f.ambient.convertTo(wide_ambient, CV_16U, 257.0);
+      if (wide_format == PixelFormat::kRgb16)
+      {
+        cv::cvtColor(wide, wide, cv::COLOR_BGR2RGB);
+        cv::cvtColor(wide_ambient, wide_ambient, cv::COLOR_BGR2RGB);
+      }
+      const SpotDetectionResult b = det.detect(wide, ambient ? wide_ambient : cv::Mat(), wide_format);
+      ASSERT_TRUE(b.ok) << b.error;
+      ASSERT_EQ(b.spots.size(), a.size()) << encodingName(wide_format) << (ambient ? " with ambient" : "");
+      for (size_t i = 0; i < a.size(); ++i)
+      {
+        EXPECT_NEAR(a[i].x, b.spots[i].x, 1e-5) << encodingName(wide_format);
+        EXPECT_NEAR(a[i].y, b.spots[i].y, 1e-5) << encodingName(wide_format);
+      }
+    }
+  }
+}
+
 TEST(SpotDetectorInputs, BadInputIsRefusedWithAReason)
 {
   SpotDetector det;
@@ -383,7 +436,7 @@ TEST(SpotDetectorInputs, BadInputIsRefusedWithAReason)
   }
   // Every name the nodelet may see maps to a format and back.
   for (const char* name : {"bgr8", "rgb8", "bgra8", "rgba8", "mono8", "mono16", "bayer_rggb8", "bayer_bggr8",
-                           "bayer_gbrg8", "bayer_grbg8", "yuv422", "yuv422_yuy2"})
+                           "bayer_gbrg8", "bayer_grbg8", "yuv422", "yuv422_yuy2", "bgr16", "rgb16"})
   {
     PixelFormat f;
     ASSERT_TRUE(pixelFormatFromEncoding(name, &f)) << name;
@@ -393,7 +446,7 @@ TEST(SpotDetectorInputs, BadInputIsRefusedWithAReason)
   EXPECT_FALSE(pixelFormatFromEncoding("32FC1", &f));
   EXPECT_FALSE(pixelFormatFromEncoding("bayer_rggb16", &f));
   // The smallest Bayer frame, and tiny frames of every format, are read without harm.
-  for (int k = 0; k < 12; ++k)
+  for (int k = 0; k <= static_cast<int>(PixelFormat::kRgb16); ++k)
   {
     const PixelFormat format = static_cast<PixelFormat>(k);
     const cv::Mat tiny(2, 2, matType(format), cv::Scalar::all(200));

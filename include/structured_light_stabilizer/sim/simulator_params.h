@@ -123,6 +123,11 @@ enum class SensorOutput
   kBayerBggr8,
   kBayerGbrg8,
   kBayerGrbg8,
+  // A colour camera's converter of more than 8 bits (the recommended rig's
+  // 12), its pixels in 16 bits: DN * 257 rounded to its steps
+  // (SensorParams::output_bits), MSB-aligned.
+  kBgr16,
+  kRgb16,
 };
 
 // The sensor_msgs encoding ("bgr8", "bayer_rggb8", ...) and back.
@@ -156,6 +161,10 @@ struct SensorParams
   // (the study's eq. 2.9 factor; 0.45 in the corners of this 53 deg lens).
   bool natural_vignetting = true;
   SensorOutput output = SensorOutput::kBgr8;
+  // The converter's bits of the 16-bit outputs (mono16, bgr16, rgb16), 8-16:
+  // a pixel is DN * 257 rounded to a multiple of 2^(16 - output_bits) (12:
+  // steps of 16/257 DN). The 8-bit outputs round to whole DN.
+  int output_bits = 16;
   // Charge at which a pixel is full, in DN (8-bit counts; 255 = the 8-bit
   // range, 25.5 ke- at the default gain). Below 255 the 8-bit image clips
   // there, before the read noise.
