@@ -77,6 +77,7 @@ void benchmarkInputs(int detections)
   const InputKind kinds[] = {
       {"bgr8, dots 0.3 x (few clipped)", "bgr8", ProjectorColor::kGreen, 0.3, false, -1},
       {"bgr8 + projector-off frame", "bgr8", ProjectorColor::kGreen, 1.0, true, -1},
+      {"bgr16 (12 bits) + projector-off frame", "bgr16", ProjectorColor::kGreen, 1.0, true, -1},
       {"bayer_rggb8", "bayer_rggb8", ProjectorColor::kGreen, 1.0, false, -1},
       {"mono8, NIR, by night", "mono8", ProjectorColor::kNir, 1.0, false, 0.0},
       {"mono8, NIR, by day + projector-off frame", "mono8", ProjectorColor::kNir, 1.0, true, -1},
@@ -91,6 +92,7 @@ void benchmarkInputs(int detections)
     {
       SimulatorParams cfg;
       sensorOutputFromEncoding(k.output, &cfg.sensor.output);
+      cfg.sensor.output_bits = 12;  // the 16-bit outputs: the recommended rig's converter
       cfg.projector.color = k.color;
       cfg.projector.wavelength_nm = nominalWavelengthNm(k.color);
       cfg.lighting.sun_level = k.sun >= 0 ? k.sun : (i % 2 ? 1.0 : 0.5);

@@ -6,7 +6,11 @@
 //
 //   evaluate_daylight [--rig FILE] [--ratio R] [--strobe 0|1] [--sun S] [--distance D]... [--seeds A,B]
 //                     [--frames N] [--texture PERIOD_M] [--sweep R1,R2,...] [--motion M]
-//                     [--full-resolution-tracking 0|1]
+//                     [--full-resolution-tracking 0|1] [--output ENCODING] [--output-bits N]
+//                     [--unrounded 0|1] [--true-ambient 0|1]
+//
+// The camera: the rig's as designed (its output_bits: the recommended rig's
+// 12 bits as bgr16), bgr8 without --rig; --output overrides it.
 //
 // Strobed: the projector fires on every second frame (30 Hz camera, 15 Hz
 // dot frames); the ambient frames around each on-frame are compensated to
@@ -61,8 +65,11 @@ struct Options
   bool full_resolution_tracking = false;  // strobed: track the ambient frames' motion at full resolution
   bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
   int detect_threshold = -1, min_peak = -1;  // >= 0: the SpotDetector's fast.detect_threshold / fast.min_peak
-  std::string output = "bgr8";               // the camera's encoding (SensorOutput)
-  int output_bits = 16;                      // 16-bit outputs: the converter's bits
+  // The camera's encoding (SensorOutput) and a 16-bit output's converter
+  // bits; empty: the rig's camera as designed (bgr16 at its output_bits when
+  // more than 8), bgr8 without a rig.
+  std::string output;
+  int output_bits = 16;
   bool unrounded = true;                     // strobed: the ambient estimate unrounded (CV_32F)
 };
 
@@ -358,7 +365,17 @@ int main(int argc, char** argv)
   }
   try
   {
-    if (o.sweep.empty())
+    if (o.output.empty() && !o.rig.empty())
+    {
+      const int bits = loadRig(analyseScene(SceneInputs()), o.rig).output_bits;
+      o.output = bits > 8 ? "bgr16" : "bgr8";
+      o.output_bits = bits > 8 ? bits : 16;
+    }
+    else if (o.output.empty())
+      o.output = "bgr8";
+    std::printf("camera output: %s%s\n", o.output.c_str(),
+                o.output == "bgr16" || o.output == "rgb16" ? (", " + std::to_string(o.output_bits) + " bits").c_str()
+                                                           : "");
     {
       std::printf("%s, sun %.2f, ratio %s:\n", o.strobe ? "strobed" : "one frame", o.sun,
                   o.ratio >= 0 ? std::to_string(o.ratio).c_str() : "the rig's");
