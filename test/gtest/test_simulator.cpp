@@ -559,6 +559,17 @@ TEST(Simulator, OliveMineralsDoNotLookLikeDots)
 // camera do: away from the dots their noise residuals are uncorrelated
 // (|r| < 0.05 over ~10^5 pixels; shared deviates gave r near 1), and each
 // has the noise of the camera (within 10 % of each other).
+namespace
+{
+// The projector-off frame of time t.
+sls::SimFrame renderOff(const sls::Simulator& sim, double t)
+{
+  sls::FrameRequest off_request;
+  off_request.projector_on = false;
+  return sim.render(t, off_request);
+}
+}  // namespace
+
 TEST(Simulator, ExposuresOfOneInstantHaveTheirOwnNoise)
 {
   sls::SimulatorParams c = sls::studySimulatorParams();  // 1 DN read noise: the noise well above the rounding
@@ -566,9 +577,7 @@ TEST(Simulator, ExposuresOfOneInstantHaveTheirOwnNoise)
   c.keep_linear = true;
   const sls::Simulator sim(c);
   const sls::SimFrame on = sim.render(0.4);
-  sls::FrameRequest off_request;
-  off_request.projector_on = false;
-  const sls::SimFrame off = sim.render(0.4, off_request);
+  const sls::SimFrame off = renderOff(sim, 0.4);
   cv::Mat mask(on.image.size(), CV_8U, cv::Scalar(255));
   for (size_t b = 0; b < on.points.size(); ++b)
     if (on.visible[b])
@@ -603,9 +612,7 @@ TEST(Simulator, FrameRequestTurnsTheProjectorOffAndMovesTheCamera)
   c.keep_linear = true;
   const sls::Simulator sim(c);
   const sls::SimFrame on = sim.render(0.2);
-  sls::FrameRequest off_request;
-  off_request.projector_on = false;
-  const sls::SimFrame off = sim.render(0.2, off_request);
+  const sls::SimFrame off = renderOff(sim, 0.2);
   // Same truth, same rock; the only light that differs is the projector's.
   int visible = 0;
   for (size_t b = 0; b < on.points.size(); ++b)

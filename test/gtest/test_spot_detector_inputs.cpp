@@ -320,6 +320,22 @@ TEST(SpotDetectorInputs, Mono16IsMono8Scaled)
   }
 }
 
+namespace
+{
+// A small sunlit frame of the independent generator with its projector-off
+// frame (bgr8, 5 x 5 dots).
+synthetic_dots::Frame sunlitWithAmbient(uint32_t seed)
+{
+  synthetic_dots::Config cfg;
+  cfg.width = cfg.height = 320;
+  cfg.rows = cfg.cols = 5;
+  cfg.sun = 1.0;
+  cfg.ambient_frame = true;
+  cfg.seed = seed;
+  return synthetic_dots::render(cfg);
+}
+}  // namespace
+
 // An ambient estimate kept unrounded (CV_32F, AmbientCompensationParams::
 // unrounded): holding the 8-bit frame's own values it gives the same spots as
 // that frame; non-finite values do no harm (they read as 0); a float ambient
@@ -327,13 +343,7 @@ TEST(SpotDetectorInputs, Mono16IsMono8Scaled)
 // reason.
 TEST(SpotDetectorInputs, UnroundedAmbientEstimate)
 {
-  synthetic_dots::Config cfg;
-  cfg.width = cfg.height = 320;
-  cfg.rows = cfg.cols = 5;
-  cfg.sun = 1.0;
-  cfg.ambient_frame = true;
-  cfg.seed = 6300;
-  const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+  const synthetic_dots::Frame f = sunlitWithAmbient(6300);
   ASSERT_EQ(f.ambient.type(), CV_8UC3);
   SpotDetector det;
   cv::Mat fine;
@@ -374,17 +384,11 @@ TEST(SpotDetectorInputs, UnroundedAmbientEstimate)
 
 // bgr16 and rgb16 (a colour camera of more than 8 bits) are read at their
 // full depth: the same scene as bgr8 x 257 gives the same spots, with and
-// without an ambient frame; a 12-bit rendering of a strobed scene (steps of
-// 16/257 DN) keeps every dot.
+// without an ambient frame (simulator frames in bgr16/rgb16:
+// SimulatorInputKinds).
 TEST(SpotDetectorInputs, Colour16IsColour8Scaled)
 {
-  synthetic_dots::Config cfg;
-  cfg.width = cfg.height = 320;
-  cfg.rows = cfg.cols = 5;
-  cfg.sun = 1.0;
-  cfg.ambient_frame = true;
-  cfg.seed = 6500;
-  const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+  const synthetic_dots::Frame f = sunlitWithAmbient(6500);
   SpotDetector det;
   for (bool ambient : {false, true})
   {
