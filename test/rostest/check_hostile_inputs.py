@@ -53,8 +53,8 @@ for _depth, _size in (("8U", 1), ("8S", 1), ("16U", 2), ("16S", 2), ("32S", 4), 
     for _ch in range(1, 5):
         ENCODINGS["%sC%d" % (_depth, _ch)] = _size * _ch
 # SpotDetector's inputs (docs/interface.md; 8UC1 = mono8, 16UC1 = mono16).
-ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "mono8", "8UC1", "mono16", "16UC1", "bayer_rggb8", "bayer_bggr8",
-            "bayer_gbrg8", "bayer_grbg8", "yuv422", "yuv422_yuy2")
+ACCEPTED = ("bgr8", "rgb8", "bgra8", "rgba8", "bgr16", "rgb16", "mono8", "8UC1", "mono16", "16UC1", "bayer_rggb8",
+            "bayer_bggr8", "bayer_gbrg8", "bayer_grbg8", "yuv422", "yuv422_yuy2")
 
 
 def image(width, height, encoding, step=None, data=None, fill=0):
