@@ -7,7 +7,7 @@
 //   evaluate_daylight [--rig FILE] [--ratio R] [--strobe 0|1] [--sun S] [--distance D]... [--seeds A,B]
 //                     [--frames N] [--texture PERIOD_M] [--sweep R1,R2,...] [--motion M]
 //                     [--full-resolution-tracking 0|1] [--output ENCODING] [--output-bits N]
-//                     [--unrounded 0|1] [--true-ambient 0|1]
+//                     [--unrounded 0|1] [--true-ambient 0|1] [--focus M]
 //
 // The camera: the rig's as designed (its output_bits: the recommended rig's
 // 12 bits as bgr16), bgr8 without --rig; --output overrides it.
@@ -70,7 +70,8 @@ struct Options
   // more than 8), bgr8 without a rig.
   std::string output;
   int output_bits = 16;
-  bool unrounded = true;                     // strobed: the ambient estimate unrounded (CV_32F)
+  double focus_m = -1.0;  // > 0: the lens's focus distance (default: the simulator's, 1 m)
+  bool unrounded = true;  // strobed: the ambient estimate unrounded (CV_32F)
 };
 
 struct Stats
@@ -135,6 +136,8 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
   if (!sensorOutputFromEncoding(o.output, &p.sensor.output))
     throw std::invalid_argument("--output: unknown encoding " + o.output);
   p.sensor.output_bits = o.output_bits;
+  if (o.focus_m > 0.0)
+    p.sensor.focus_distance_m = o.focus_m;
   if (o.albedo > 0.0)
   {
     p.rock.albedo_min = p.rock.albedo_max = o.albedo;
@@ -353,6 +356,8 @@ int main(int argc, char** argv)
       o.unrounded = v != "0";
     else if (k == "--output")
       o.output = v;
+    else if (k == "--focus")
+      o.focus_m = std::atof(v.c_str());
     else if (k == "--output-bits")
       o.output_bits = std::atoi(v.c_str());
     else if (k == "--sweep")
@@ -373,9 +378,9 @@ int main(int argc, char** argv)
     }
     else if (o.output.empty())
       o.output = "bgr8";
-    std::printf("camera output: %s%s\n", o.output.c_str(),
-                o.output == "bgr16" || o.output == "rgb16" ? (", " + std::to_string(o.output_bits) + " bits").c_str()
-                                                           : "");
+    std::printf(
+        "camera output: %s%s\n", o.output.c_str(),
+        o.output == "bgr16" || o.output == "rgb16" ? (", " + std::to_string(o.output_bits) + " bits").c_str() : "");
     {
       std::printf("%s, sun %.2f, ratio %s:\n", o.strobe ? "strobed" : "one frame", o.sun,
                   o.ratio >= 0 ? std::to_string(o.ratio).c_str() : "the rig's");
