@@ -70,7 +70,10 @@ struct Options
   // more than 8), bgr8 without a rig.
   std::string output;
   int output_bits = 16;
-  double focus_m = -1.0;  // > 0: the lens's focus distance (default: the simulator's, 1 m)
+  double albedo_floor = -1.0;  // >= 0: the SpotDetector's fast.albedo_floor_dn
+  double focus_m = -1.0;
+  int rock_subsample =
+      0;  // > 0: SimulatorParams::rock_subsample  // > 0: the lens's focus distance (default: the simulator's, 1 m)
   bool unrounded = true;  // strobed: the ambient estimate unrounded (CV_32F)
 };
 
@@ -138,6 +141,8 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
   p.sensor.output_bits = o.output_bits;
   if (o.focus_m > 0.0)
     p.sensor.focus_distance_m = o.focus_m;
+  if (o.rock_subsample > 0)
+    p.rock_subsample = o.rock_subsample;
   if (o.albedo > 0.0)
   {
     p.rock.albedo_min = p.rock.albedo_max = o.albedo;
@@ -204,6 +209,8 @@ Stats runCase(const Options& o, double distance, uint32_t seed)
     dp.fast.detect_threshold = o.detect_threshold;
   if (o.min_peak >= 0)
     dp.fast.min_peak = o.min_peak;
+  if (o.albedo_floor >= 0.0)
+    dp.fast.albedo_floor_dn = o.albedo_floor;
   SpotDetector detector(dp);
   const Triangulator tri(sim.camera(), sim.projector());
   PoseDeltaEstimator pose((PoseDeltaParams()));
@@ -356,6 +363,10 @@ int main(int argc, char** argv)
       o.unrounded = v != "0";
     else if (k == "--output")
       o.output = v;
+    else if (k == "--albedo-floor")
+      o.albedo_floor = std::atof(v.c_str());
+    else if (k == "--rock-subsample")
+      o.rock_subsample = std::atoi(v.c_str());
     else if (k == "--focus")
       o.focus_m = std::atof(v.c_str());
     else if (k == "--output-bits")
