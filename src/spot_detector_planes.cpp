@@ -82,9 +82,7 @@ void FramePlanes::buildMatchedScores(const FastParams& p, const MatchedNoise* fi
   cv::Mat& raw = matched_raw_;  // kept: no allocation per frame
   raw.create(grid_rows_, grid_cols_, CV_16S);
   for (int gy = 0; gy < grid_rows_; ++gy)
-    if (!model_.colour ||
-        !rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, raw.ptr<int16_t>(gy)))
-      scoreRow(gy, raw.ptr<int16_t>(gy));
+    scoreRow(gy, raw.ptr<int16_t>(gy));
   cv::Mat& smooth = matched_smooth_;
   raw.convertTo(smooth, CV_32F);
   cv::GaussianBlur(smooth, smooth, cv::Size(0, 0), p.matched_sigma_px / scale_);
@@ -194,10 +192,13 @@ int FramePlanes::scoreAt(int gx, int gy) const
 // ---------------------------------------------------------------------------
 // Rows of the threshold pass.
 
-// Any format and path: one row decoded into channel arrays (a switch per
+// Any format and path: the SIMD score rows where rows::colourScoreRow serves
+// the format, else one row decoded into channel arrays (a switch per
 // row, simple loops per cell), scored, compared.
 void FramePlanes::scoreRow(int gy, int16_t* out) const
 {
+  if (model_.colour && rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, out))
+    return;  // the SIMD rows of the common formats, the same values
   const int n = grid_cols_;
   std::vector<int>& c = decoded_;  // scratch kept across rows and frames
   std::vector<int>& a = decoded_ambient_;
@@ -244,8 +245,7 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
   if (fusedRowRuns(gy, runs, acc))
     return;
   int16_t* s = row_scores_.data();
-  if (!model_.colour || !rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, s))
-    scoreRow(gy, s);
+  scoreRow(gy, s);
   for (int gx = 0; gx < grid_cols_; ++gx)
   {
     if (acc)
