@@ -7,7 +7,8 @@
 //   evaluate_daylight [--rig FILE] [--ratio R] [--strobe 0|1] [--sun S] [--distance D]... [--seeds A,B]
 //                     [--frames N] [--texture PERIOD_M] [--sweep R1,R2,...] [--motion M]
 //                     [--full-resolution-tracking 0|1] [--output ENCODING] [--output-bits N]
-//                     [--unrounded 0|1] [--true-ambient 0|1] [--focus M]
+//                     [--unrounded 0|1] [--true-ambient 0|1] [--focus M] [--relief M]
+//                     [--noise-free 0|1]
 //
 // The camera: the rig's as designed (its output_bits: the recommended rig's
 // 12 bits as bgr16), bgr8 without --rig; --output overrides it.
@@ -71,10 +72,11 @@ struct Options
   std::string output;
   int output_bits = 16;
   double albedo_floor = -1.0;  // >= 0: the SpotDetector's fast.albedo_floor_dn
-  double focus_m = -1.0;
-  int rock_subsample =
-      0;  // > 0: SimulatorParams::rock_subsample  // > 0: the lens's focus distance (default: the simulator's, 1 m)
-  bool unrounded = true;  // strobed: the ambient estimate unrounded (CV_32F)
+  double focus_m = -1.0;       // > 0: the lens's focus distance (default: the simulator's, 1 m)
+  int rock_subsample = 0;      // > 0: SimulatorParams::rock_subsample
+  bool unrounded = true;       // strobed: the ambient estimate unrounded (CV_32F)
+  double relief = 0.15;        // the rock's peak-to-peak relief (m; 0: a flat rock)
+  bool noise_free = false;     // no shot nor read noise (quantisation stays): what the geometry alone leaves
 };
 
 struct Stats
@@ -119,7 +121,7 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
   p.rock.seed = seed;
   p.noise_seed = 1000 + seed;
   p.rock.distance_m = distance;
-  p.rock.relief_m = 0.15;
+  p.rock.relief_m = o.relief;
   p.lighting.sun_level = o.sun;
   p.motion.jitter_translation_m = 0.002 * o.motion;
   p.motion.jitter_rotation_rad = 0.001 * o.motion;
@@ -143,6 +145,11 @@ SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed)
     p.sensor.focus_distance_m = o.focus_m;
   if (o.rock_subsample > 0)
     p.rock_subsample = o.rock_subsample;
+  if (o.noise_free)
+  {
+    p.sensor.read_noise_dn = 0.0;
+    p.sensor.shot_noise = false;
+  }
   if (o.albedo > 0.0)
   {
     p.rock.albedo_min = p.rock.albedo_max = o.albedo;
@@ -367,6 +374,10 @@ int main(int argc, char** argv)
       o.albedo_floor = std::atof(v.c_str());
     else if (k == "--rock-subsample")
       o.rock_subsample = std::atoi(v.c_str());
+    else if (k == "--relief")
+      o.relief = std::atof(v.c_str());
+    else if (k == "--noise-free")
+      o.noise_free = v != "0";
     else if (k == "--focus")
       o.focus_m = std::atof(v.c_str());
     else if (k == "--output-bits")

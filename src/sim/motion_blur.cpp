@@ -50,7 +50,7 @@ const float* renderBlurredRock(const RockSurface& rock, const RockSampling& samp
   sum.assign(sampling.stride() * sampling.rh, 0.0f);
   for (double tau : subExposureTimes(t, sensor.exposure_time_s, n))
   {
-    const float* rows = renderRockSamples(rock, sampling, sensor, geometry(tau), sun / n);
+    const float* rows = renderRockSamples(rock, sampling, sensor, geometry(tau), sun / n).radiance;
     for (size_t k = 0; k < sum.size(); ++k)
       sum[k] += rows[k];
   }

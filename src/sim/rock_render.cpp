@@ -9,6 +9,7 @@
 #include <cstring>
 
 #include <opencv2/core.hpp>
+#include <opencv2/core/hal/intrin.hpp>
 
 #include "structured_light_stabilizer/detail/math.h"
 #include "target_board.h"
@@ -88,6 +89,42 @@ struct FloatHeightField
   int stride;       // vertices per grid row
 };
 
+// The sunlit reflectance grid read at rock-frame points, in float.
+struct SunlitGrid
+{
+  explicit SunlitGrid(const RockSurface& rock)
+    : ic(static_cast<float>(1.0 / rock.cell)),
+      gx0(static_cast<float>(rock.x0)),
+      gy0(static_cast<float>(rock.y0)),
+      hs(rock.hs.data()),
+      stride(rock.nx + 1),
+      nx(rock.nx),
+      ny(rock.ny)
+  {
+  }
+
+  // Bilinear B, G, R (and h) at (px, py) times scale, into out[0..3].
+  void at(float px, float py, float scale, float* out) const
+  {
+    const float gxf = (px - gx0) * ic, gyf = (py - gy0) * ic;
+    const int ci = std::min(std::max(static_cast<int>(gxf), 0), nx - 1);
+    const int cj = std::min(std::max(static_cast<int>(gyf), 0), ny - 1);
+    const float tx = gxf - ci, ty = gyf - cj;
+    const float* p00 = hs + 4 * (cj * stride + ci);
+    const float* p01 = p00 + 4 * stride;
+    const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
+    const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
+    // One 4-lane register per vertex (B, G, R, h).
+    const cv::v_float32x4 r = cv::v_load(p00) * cv::v_setall_f32(w00) + cv::v_load(p00 + 4) * cv::v_setall_f32(w10) +
+                              cv::v_load(p01) * cv::v_setall_f32(w01) + cv::v_load(p01 + 4) * cv::v_setall_f32(w11);
+    cv::v_store(out, r);
+  }
+
+  float ic, gx0, gy0;
+  const float* hs;
+  int stride, nx, ny;
+};
+
 class RockSampleRenderer
 {
 public:
@@ -107,8 +144,10 @@ public:
   {
   }
 
-  // Fills `rows`: sampling.rh rows of sampling.stride() floats.
-  void render(float* rows)
+  // Fills `rows` (radiance) and, unless nullptr, `hits` (x, y, scale; x NaN
+  // where not on the height field): sampling.rh rows of sampling.stride()
+  // floats each.
+  void render(float* rows, float* hits)
   {
     if (lattice_)
       castCoarseLattice();
@@ -118,7 +157,7 @@ public:
                       {
                         RowScratch scratch(sampling_.rw);
                         for (int j = range.start; j < range.end; ++j)
-                          renderRow(j, rows + stride * j, &scratch);
+                          renderRow(j, rows + stride * j, hits ? hits + stride * j : nullptr, &scratch);
                       });
   }
 
@@ -127,11 +166,11 @@ private:
   void normalized(int i, int j, double* x, double* y) const;
   void castCoarseLattice();
   void robustSample(int u, int v, float* out) const;
-  void renderRow(int v, float* row, RowScratch* scratch) const;
+  void renderRow(int v, float* row, float* hits, RowScratch* scratch) const;
   void interpolateDepth(int v, RowScratch* scratch) const;
   void computeRays(int v, RowScratch* scratch) const;
   void refineDepth(RowScratch* scratch) const;
-  void shadeRow(int v, float* row, RowScratch* scratch) const;
+  void shadeRow(int v, float* row, float* hits, RowScratch* scratch) const;
 
   const RockSurface& rock_;
   const RockSampling& sampling_;
@@ -217,18 +256,22 @@ void RockSampleRenderer::robustSample(int u, int v, float* out) const
 // below the 4 mm texture cell); everything else takes the robust path. Simple
 // passes over the row with few, predictable branches, so that the samples'
 // latency chains (load, divide) overlap.
-void RockSampleRenderer::renderRow(int v, float* row, RowScratch* scratch) const
+void RockSampleRenderer::renderRow(int v, float* row, float* hits, RowScratch* scratch) const
 {
   if (!lattice_)
   {
     for (int u = 0; u < sampling_.rw; ++u)
+    {
       robustSample(u, v, row + 3 * u);
+      if (hits)
+        hits[3 * u] = detail::kNaN;
+    }
     return;
   }
   interpolateDepth(v, scratch);
   computeRays(v, scratch);
   refineDepth(scratch);
-  shadeRow(v, row, scratch);
+  shadeRow(v, row, hits, scratch);
 }
 
 // Ray parameter of each sample of row v interpolated from the coarse lattice;
@@ -333,12 +376,14 @@ void RockSampleRenderer::refineDepth(RowScratch* scratch) const
 }
 
 // Radiance of each converged sample from the interleaved sunlit grid; the
-// others (and points off the rock) take the robust path.
-void RockSampleRenderer::shadeRow(int v, float* row, RowScratch* scratch) const
+// others (and points off the rock) take the robust path. With `hits`, each
+// sample's point and scale (x NaN for the robust ones).
+void RockSampleRenderer::shadeRow(int v, float* row, float* hits, RowScratch* scratch) const
 {
   const FloatHeightField field(rock_, g_.o);
+  const SunlitGrid grid(rock_);
   const float half_w = static_cast<float>(rock_.half_w), half_h = static_cast<float>(rock_.half_h);
-  const int nx = rock_.nx, ny = rock_.ny, Wr = sampling_.rw;
+  const int Wr = sampling_.rw;
   const float* S = scratch->s.data();
   const float* DX = scratch->dx.data();
   const float* DY = scratch->dy.data();
@@ -348,24 +393,21 @@ void RockSampleRenderer::shadeRow(int v, float* row, RowScratch* scratch) const
   {
     float* out = row + 3 * u;
     const float px = field.ox + S[u] * DX[u], py = field.oy + S[u] * DY[u];
-    if (state[u] != kConverged || !(std::abs(px) <= half_w && std::abs(py) <= half_h))
+    const bool fast = state[u] == kConverged && std::abs(px) <= half_w && std::abs(py) <= half_h;
+    if (hits)
+    {
+      hits[3 * u] = fast ? px : detail::kNaN;
+      hits[3 * u + 1] = py;
+      hits[3 * u + 2] = VG[u];
+    }
+    if (!fast)
     {
       robustSample(u, v, out);
       continue;
     }
-    const float gxf = (px - field.gx0) * field.ic, gyf = (py - field.gy0) * field.ic;
-    const int ci = std::min(std::max(static_cast<int>(gxf), 0), nx - 1);
-    const int cj = std::min(std::max(static_cast<int>(gyf), 0), ny - 1);
-    const float tx = gxf - ci, ty = gyf - cj;
-    const float scale = VG[u];
-    const float* p00 = field.hs + 4 * (cj * field.stride + ci);
-    const float* p01 = p00 + 4 * field.stride;
-    const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
-    const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
     // All four lanes (B, G, R, h) in one go; the fourth lands on the next
     // pixel's B, which is written after it (rows have one float of slack).
-    for (int c = 0; c < 4; ++c)
-      out[c] = w00 * p00[c] + w10 * p00[4 + c] + w01 * p01[c] + w11 * p01[4 + c];
+    grid.at(px, py, VG[u], out);
   }
 }
 
@@ -467,19 +509,68 @@ void RockSampling::upsampleRow(const float* __restrict samples, int v, int width
   }
 }
 
-const float* renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const SensorParams& sensor,
-                               const FrameGeometry& g, double sun)
+// Samples farther apart than this on the rock (m) straddle a step or a
+// silhouette: the pixels between them keep the radiance blend.
+constexpr float kMaxHitGapM = 0.01f;
+
+void RockSampling::sharpenRow(const RockSurface& rock, const float* __restrict hits, int v, int width,
+                              float* __restrict L, float* __restrict T) const
 {
-  static thread_local std::vector<float> buffer;
+  const size_t row_stride = stride();
+  const float* A = hits + row_stride * up_j0[v];
+  const float* B = hits + row_stride * up_j1[v];
+  const float wy = up_wy[v];
+  // The two sample rows blended; NaN (off the height field) and far-apart
+  // pairs give NaN.
+  for (int i = 0; i < rw; ++i)
+  {
+    const float* a = A + 3 * i;
+    const float* b = B + 3 * i;
+    const bool near = std::abs(b[0] - a[0]) <= kMaxHitGapM && std::abs(b[1] - a[1]) <= kMaxHitGapM;
+    float* t = T + 3 * i;
+    t[0] = near ? a[0] + wy * (b[0] - a[0]) : detail::kNaN;
+    t[1] = a[1] + wy * (b[1] - a[1]);
+    t[2] = a[2] + wy * (b[2] - a[2]);
+  }
+  const SunlitGrid grid(rock);
+  for (int u = 0; u < width; ++u)
+  {
+    const float* a = T + 3 * up_i0[u];
+    const float* b = T + 3 * up_i1[u];
+    if (!(std::abs(b[0] - a[0]) <= kMaxHitGapM && std::abs(b[1] - a[1]) <= kMaxHitGapM))
+      continue;  // NaN fails too
+    const float wx = up_wx[u];
+    float out[4];
+    grid.at(a[0] + wx * (b[0] - a[0]), a[1] + wx * (b[1] - a[1]), a[2] + wx * (b[2] - a[2]), out);
+    for (int c = 0; c < 3; ++c)
+      L[3 * u + c] = out[c];
+  }
+}
+
+RockSamples renderRockSamples(const RockSurface& rock, const RockSampling& sampling, const SensorParams& sensor,
+                              const FrameGeometry& g, double sun)
+{
+  static thread_local std::vector<float> buffer, hit_buffer;
   buffer.resize(sampling.stride() * sampling.rh);
-  // A plain pointer: inside the parallel body, `buffer` would name the
+  // Plain pointers: inside the parallel body, `buffer` would name the
   // worker thread's own (empty) instance.
+  RockSamples out;
   float* const rows = buffer.data();
+  out.radiance = rows;
   if (rock.board)
+  {
     renderBoardSamples(rock, sampling, sensor, g, sun, rows);
-  else
-    RockSampleRenderer(rock, sampling, sensor.camera, g, sun, sensor.natural_vignetting).render(rows);
-  return rows;
+    return out;
+  }
+  float* hits = nullptr;
+  if (sampling.sub > 1)
+  {
+    hit_buffer.resize(buffer.size());
+    hits = hit_buffer.data();
+    out.hits = hits;
+  }
+  RockSampleRenderer(rock, sampling, sensor.camera, g, sun, sensor.natural_vignetting).render(rows, hits);
+  return out;
 }
 
 }  // namespace sim

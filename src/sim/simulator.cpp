@@ -69,7 +69,8 @@ struct ClipProbe
 struct RowInputs
 {
   const sim::RockSampling& sampling;
-  const float* rock_samples;  // nullptr without sun
+  const sim::RockSurface& rock;
+  sim::RockSamples rock_samples;  // radiance nullptr without sun
   const sim::SplatRows& splats;
   const sim::SensorNoise& noise;
   const sim::SensorReadout& readout;
@@ -83,8 +84,12 @@ struct RowInputs
 float* radianceRow(const RowInputs& in, int v, float* L, float* S, float* blend, SimFrame* frame)
 {
   const int W = frame->image.cols;
-  if (in.rock_samples)
-    in.sampling.upsampleRow(in.rock_samples, v, W, L, blend);
+  if (in.rock_samples.radiance)
+  {
+    in.sampling.upsampleRow(in.rock_samples.radiance, v, W, L, blend);
+    if (in.rock_samples.hits)
+      in.sampling.sharpenRow(in.rock, in.rock_samples.hits, v, W, L, blend);
+  }
   else
     std::fill(L, L + 3 * W + 5, 0.0f);
   in.splats.applyRow(v, W, L);
@@ -274,10 +279,11 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
     splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
   const sim::SplatRows splat_rows(std::move(splats), std::move(dot_albedo), im.rock, sc.camera.height);
 
-  const float* rock_samples = nullptr;
-  if (sun > 0.0)
-    rock_samples = blur ? sim::renderBlurredRock(im.rock, im.sampling, sc, geometry, t, sun)
-                        : sim::renderRockSamples(im.rock, im.sampling, sc, g, sun);
+  sim::RockSamples rock_samples;
+  if (sun > 0.0 && blur)
+    rock_samples.radiance = sim::renderBlurredRock(im.rock, im.sampling, sc, geometry, t, sun);
+  else if (sun > 0.0)
+    rock_samples = sim::renderRockSamples(im.rock, im.sampling, sc, g, sun);
   const sim::SensorReadout readout(sc, im.spectrum.mono_weights);
   if (params_.keep_linear)
     frame.linear.create(sc.camera.height, sc.camera.width, readout.linearType());
@@ -293,7 +299,7 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
     probes.clear();  // no dot, nothing clipped by it
   std::sort(probes.begin(), probes.end(), [](const ClipProbe& a, const ClipProbe& b) { return a.v < b.v; });
   const sim::SensorNoise noise(sc, params_.noise_seed, t, request.projector_on ? 0u : 1u);
-  exposeRows({im.sampling, rock_samples, splat_rows, noise, readout, probes, sc.blooming}, &frame);
+  exposeRows({im.sampling, im.rock, rock_samples, splat_rows, noise, readout, probes, sc.blooming}, &frame);
   return frame;
 }
 

@@ -263,11 +263,13 @@ struct SimulatorParams
   RigMotionParams motion;
   ClutterParams clutter;
   uint32_t noise_seed = 42;
-  // The rock's shading is ray-cast on every rock_subsample-th pixel (centres
-  // of n x n blocks) and interpolated bilinearly in between; 1 = every pixel.
-  // The rock texture and shading vary over >= 4 mm cells (>= 2.7 px at
-  // 1.5 m), so 2 loses little and costs a quarter. Dots, clutter, noise and
-  // all ground truth are per pixel and exact whatever the value. In [1, 4].
+  // The rock is ray-cast on every rock_subsample-th pixel (centres of n x n
+  // blocks); in between, the surface point is interpolated and each pixel
+  // reads the reflectance at its own point (the radiance is blended only
+  // across silhouettes and steps, and under motion blur); 1 = every pixel.
+  // 2 matches 1 within 0.3 % (mean; the fine texture at 2 m) for 60 % of its
+  // cost. Dots, clutter, noise and all ground truth are per pixel and exact
+  // whatever the value. In [1, 4].
   int rock_subsample = 2;
   // Keep the noise-free linear radiance (CV_32FC3, DN, before noise, clipping
   // and quantisation) in SimFrame::linear; for tests.
