@@ -421,12 +421,13 @@ TEST(SpotDetectorSim, FineTextureByDay)
     EXPECT_LT(r->reference.rms(), 0.8 * r->none.rms());
     EXPECT_LT(r->ambient.rms(), 0.6 * r->none.rms());
   }
-  // Measured 0.051 / 0.078 px with the projector-off frame (its own noise:
-  // 0.046 / 0.073 when the simulator drew the same deviates for both
-  // exposures of one instant), 0.136 / 0.101 with the reference channel
+  // Measured 0.043 / 0.073 px with the projector-off frame (0.051 / 0.078
+  // while the simulator's rock lost the grain between its ray-cast samples,
+  // docs/simulator.md#rock), 0.134 / 0.102 with the reference channel
   // (flat / rough; the reference misses the texture's own hue, R against B).
-  EXPECT_LE(flat.ambient.rms(), 0.06);
-  EXPECT_LE(rough.ambient.rms(), 0.095);
+  // The flat rock meets #14's 0.05 px on textured rock.
+  EXPECT_LE(flat.ambient.rms(), 0.05);
+  EXPECT_LE(rough.ambient.rms(), 0.09);
   EXPECT_LE(flat.reference.rms(), 0.17);
   EXPECT_LE(rough.reference.rms(), 0.125);
 }
