@@ -532,16 +532,70 @@ void RockSampling::sharpenRow(const RockSurface& rock, const float* __restrict h
     t[1] = a[1] + wy * (b[1] - a[1]);
     t[2] = a[2] + wy * (b[2] - a[2]);
   }
-  const SunlitGrid grid(rock);
+  // Each pixel's point and scale (x NaN where the blend stays), then the
+  // grid read four pixels at a time: their cells and weights in SIMD, the
+  // four vertices of each as one register each.
+  static thread_local std::vector<float> P;
+  P.resize(3 * static_cast<size_t>(width) + 12);
+  float* const PX = P.data();
+  float* const PY = PX + width + 4;
+  float* const PS = PY + width + 4;
   for (int u = 0; u < width; ++u)
   {
     const float* a = T + 3 * up_i0[u];
     const float* b = T + 3 * up_i1[u];
-    if (!(std::abs(b[0] - a[0]) <= kMaxHitGapM && std::abs(b[1] - a[1]) <= kMaxHitGapM))
-      continue;  // NaN fails too
+    const bool near = std::abs(b[0] - a[0]) <= kMaxHitGapM && std::abs(b[1] - a[1]) <= kMaxHitGapM;
     const float wx = up_wx[u];
+    PX[u] = near ? a[0] + wx * (b[0] - a[0]) : detail::kNaN;  // NaN fails `near` too
+    PY[u] = near ? a[1] + wx * (b[1] - a[1]) : 0.0f;
+    PS[u] = near ? a[2] + wx * (b[2] - a[2]) : 0.0f;
+  }
+  const SunlitGrid grid(rock);
+  const cv::v_float32x4 gx0 = cv::v_setall_f32(grid.gx0), gy0 = cv::v_setall_f32(grid.gy0);
+  const cv::v_float32x4 ic = cv::v_setall_f32(grid.ic), one = cv::v_setall_f32(1.0f);
+  const cv::v_float32x4 stride4 = cv::v_setall_f32(4.0f * grid.stride);
+  const cv::v_int32x4 zero = cv::v_setzero_s32(), imax_x = cv::v_setall_s32(grid.nx - 1),
+                      imax_y = cv::v_setall_s32(grid.ny - 1);
+  int u = 0;
+  for (; u + 4 <= width; u += 4)
+  {
+    const cv::v_float32x4 px = cv::v_load(PX + u), py = cv::v_load(PY + u), sc = cv::v_load(PS + u);
+    const cv::v_float32x4 gxf = (px - gx0) * ic, gyf = (py - gy0) * ic;
+    const cv::v_int32x4 ci = cv::v_min(cv::v_max(cv::v_trunc(gxf), zero), imax_x);
+    const cv::v_int32x4 cj = cv::v_min(cv::v_max(cv::v_trunc(gyf), zero), imax_y);
+    const cv::v_float32x4 tx = gxf - cv::v_cvt_f32(ci), ty = gyf - cv::v_cvt_f32(cj);
+    // Grid offsets in floats (exact below 2^24: grids of up to 2048^2 cells).
+    const cv::v_float32x4 off = cv::v_cvt_f32(cj) * stride4 + cv::v_cvt_f32(ci) * cv::v_setall_f32(4.0f);
+    float w[4][4], o[4], x[4];
+    cv::v_store(w[0], (one - tx) * (one - ty) * sc);
+    cv::v_store(w[1], tx * (one - ty) * sc);
+    cv::v_store(w[2], (one - tx) * ty * sc);
+    cv::v_store(w[3], tx * ty * sc);
+    cv::v_store(o, off);
+    cv::v_store(x, px);
+    for (int k = 0; k < 4; ++k)
+    {
+      if (std::isnan(x[k]))
+        continue;
+      const float* p00 = grid.hs + static_cast<size_t>(o[k]);
+      const float* p01 = p00 + 4 * grid.stride;
+      const cv::v_float32x4 r =
+          cv::v_load(p00) * cv::v_setall_f32(w[0][k]) + cv::v_load(p00 + 4) * cv::v_setall_f32(w[1][k]) +
+          cv::v_load(p01) * cv::v_setall_f32(w[2][k]) + cv::v_load(p01 + 4) * cv::v_setall_f32(w[3][k]);
+      float out[4];
+      cv::v_store(out, r);
+      float* l = L + 3 * (u + k);
+      l[0] = out[0];
+      l[1] = out[1];
+      l[2] = out[2];
+    }
+  }
+  for (; u < width; ++u)
+  {
+    if (std::isnan(PX[u]))
+      continue;
     float out[4];
-    grid.at(a[0] + wx * (b[0] - a[0]), a[1] + wx * (b[1] - a[1]), a[2] + wx * (b[2] - a[2]), out);
+    grid.at(PX[u], PY[u], PS[u], out);
     for (int c = 0; c < 3; ++c)
       L[3 * u + c] = out[c];
   }
