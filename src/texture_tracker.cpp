@@ -22,14 +22,25 @@ bool TextureTracker::nearDot(const cv::Point2f& p, const std::vector<cv::Point2f
   return false;
 }
 
+bool TextureTracker::readable(const cv::Mat& image)
+{
+  const int t = image.type();
+  return !image.empty() && (t == CV_8UC1 || t == CV_8UC3 || t == CV_16UC1 || t == CV_16UC3);
+}
+
 cv::Mat TextureTracker::channelOf(const cv::Mat& image, int channel, const cv::Rect& roi)
 {
+  if (!readable(image) || (image.channels() == 3 && (channel < 0 || channel > 2)))
+    return cv::Mat();
   if (image.type() == CV_8UC1)
     return image(roi);
-  if (image.type() != CV_8UC3 || channel < 0 || channel > 2)
-    return cv::Mat();
   cv::Mat out;
-  cv::extractChannel(image(roi), out, channel);
+  if (image.channels() == 3)
+    cv::extractChannel(image(roi), out, channel);
+  else
+    out = image(roi);
+  if (out.depth() == CV_16U)
+    out.convertTo(out, CV_8U, k16BitTo8Bit);
   return out;
 }
 
@@ -115,15 +126,16 @@ double TextureTracker::noiseAt(const cv::Point2f& roi_point) const
 bool TextureTracker::floatChannel(const cv::Mat& image, int channel, const cv::Rect& roi, cv::Mat* scratch,
                                   cv::Mat* out) const
 {
-  if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
+  if (!readable(image) || (image.channels() == 3 && (channel < 0 || channel > 2)))
+    return false;
+  const double scale = image.depth() == CV_16U ? k16BitTo8Bit : 1.0;  // 8-bit DN, unrounded
+  if (image.channels() == 3)
   {
     cv::extractChannel(image(roi), *scratch, channel);
-    scratch->convertTo(*out, CV_32F);
+    scratch->convertTo(*out, CV_32F, scale);
   }
-  else if (image.type() == CV_8UC1)
-    image(roi).convertTo(*out, CV_32F);
   else
-    return false;
+    image(roi).convertTo(*out, CV_32F, scale);
   if (config_.smooth_sigma_px > 0.0)
     cv::GaussianBlur(*out, *out, cv::Size(0, 0), config_.smooth_sigma_px);
   return true;
@@ -143,38 +155,42 @@ int reflect101(int i, int n)
 // sensor leaves), without a full-resolution float copy and without
 // extracting the channel into a full-frame plane first. The vertical sums
 // run over whole interleaved rows (they vectorise); all sums are exact
-// integers. *sums is one row of them, kept from frame to frame.
-template <int CN>
-void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std::vector<uint16_t>* sums, cv::Mat* dst)
+// integers (of 16 bits for 8-bit pixels, of 32 for 16-bit ones). *sums is
+// one row of them, kept from frame to frame. Output in 8-bit DN: 16-bit
+// pixels (MSB-aligned, the ROS convention) are scaled by 255/65535.
+template <int CN, typename T, typename Sum>
+void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std::vector<Sum>* sums, cv::Mat* dst)
 {
   const int W = roi.width, H = roi.height, w = (W + 1) / 2, h = (H + 1) / 2, n = W * CN;
   dst->create(h, w, CV_32F);
   sums->resize(static_cast<size_t>(n));
-  uint16_t* c = sums->data();
+  Sum* c = sums->data();
   const size_t first = static_cast<size_t>(roi.x) * CN;
+  const float scale = (1.0f / 256.0f) * (sizeof(T) == 2 ? static_cast<float>(TextureTracker::k16BitTo8Bit) : 1.0f);
   auto at = [&](int x) { return std::min(std::max(reflect101(x, W), 0), W - 1) * CN + channel; };
   for (int y = 0; y < h; ++y)
   {
-    const uint8_t* r0 = image.ptr<uint8_t>(roi.y + reflect101(2 * y - 2, H)) + first;
-    const uint8_t* r1 = image.ptr<uint8_t>(roi.y + reflect101(2 * y - 1, H)) + first;
-    const uint8_t* r2 = image.ptr<uint8_t>(roi.y + 2 * y) + first;
-    const uint8_t* r3 = image.ptr<uint8_t>(roi.y + reflect101(2 * y + 1, H)) + first;
-    const uint8_t* r4 = image.ptr<uint8_t>(roi.y + reflect101(2 * y + 2, H)) + first;
+    const T* r0 = image.ptr<T>(roi.y + reflect101(2 * y - 2, H)) + first;
+    const T* r1 = image.ptr<T>(roi.y + reflect101(2 * y - 1, H)) + first;
+    const T* r2 = image.ptr<T>(roi.y + 2 * y) + first;
+    const T* r3 = image.ptr<T>(roi.y + reflect101(2 * y + 1, H)) + first;
+    const T* r4 = image.ptr<T>(roi.y + reflect101(2 * y + 2, H)) + first;
     for (int x = 0; x < n; ++x)
-      c[x] = static_cast<uint16_t>(r0[x] + r4[x] + 4 * (r1[x] + r3[x]) + 6 * r2[x]);
+      c[x] = static_cast<Sum>(Sum(r0[x]) + r4[x] + 4 * (Sum(r1[x]) + r3[x]) + 6 * Sum(r2[x]));
     float* o = dst->ptr<float>(y);
     for (int x = 0; x < w; ++x)
     {
       const int xc = 2 * x;
-      int sum;
+      uint32_t sum;
       if (xc >= 2 && xc + 2 < W)
       {
-        const uint16_t* p = c + xc * CN + channel;
-        sum = p[-2 * CN] + p[2 * CN] + 4 * (p[-CN] + p[CN]) + 6 * p[0];
+        const Sum* p = c + xc * CN + channel;
+        sum = uint32_t(p[-2 * CN]) + p[2 * CN] + 4 * (uint32_t(p[-CN]) + p[CN]) + 6 * uint32_t(p[0]);
       }
       else
-        sum = c[at(xc - 2)] + c[at(xc + 2)] + 4 * (c[at(xc - 1)] + c[at(xc + 1)]) + 6 * c[at(xc)];
-      o[x] = static_cast<float>(sum) * (1.0f / 256.0f);
+        sum = uint32_t(c[at(xc - 2)]) + c[at(xc + 2)] + 4 * (uint32_t(c[at(xc - 1)]) + c[at(xc + 1)]) +
+              6 * uint32_t(c[at(xc)]);
+      o[x] = static_cast<float>(sum) * scale;
     }
   }
 }
@@ -200,10 +216,15 @@ bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_le
     // The tracked channel is read in place from the caller's image (nothing
     // kept that could alias it once its message is freed).
     (*float_levels)[0].release();
-    if (image.type() == CV_8UC3 && channel >= 0 && channel <= 2)
-      pyrDownToFloat<3>(image, channel, roi_, &row_sums_, &(*float_levels)[1]);
+    const bool colour = channel >= 0 && channel <= 2;
+    if (image.type() == CV_8UC3 && colour)
+      pyrDownToFloat<3, uint8_t>(image, channel, roi_, &row_sums_, &(*float_levels)[1]);
     else if (image.type() == CV_8UC1)
-      pyrDownToFloat<1>(image, 0, roi_, &row_sums_, &(*float_levels)[1]);
+      pyrDownToFloat<1, uint8_t>(image, 0, roi_, &row_sums_, &(*float_levels)[1]);
+    else if (image.type() == CV_16UC3 && colour)
+      pyrDownToFloat<3, uint16_t>(image, channel, roi_, &row_sums16_, &(*float_levels)[1]);
+    else if (image.type() == CV_16UC1)
+      pyrDownToFloat<1, uint16_t>(image, 0, roi_, &row_sums16_, &(*float_levels)[1]);
     else
       return false;
   }
@@ -297,7 +318,7 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
                                  const std::vector<cv::Point2f>& dots)
 {
   clear();
-  if (image.empty() || (image.type() != CV_8UC1 && image.type() != CV_8UC3))
+  if (!readable(image))
     return 0;
   image_size_ = image.size();
   const cv::Rect full(0, 0, image.cols, image.rows);
@@ -317,7 +338,13 @@ int TextureTracker::setReference(const cv::Mat& image, int channel, const cv::Re
     clear();
     return 0;
   }
-  estimateNoise(roi_image);
+  // The noise of what the refinement reads: a 16-bit image unrounded (its
+  // 8-bit rounding would add 0.29 levels RMS that the float levels lack).
+  cv::Mat unrounded;
+  if (image.depth() == CV_16U && floatChannel(image, channel, roi_, &scratch_, &unrounded))
+    estimateNoise(unrounded);
+  else
+    estimateNoise(roi_image);
   const cv::Size win(config_.window_px, config_.window_px);
   if (config_.photometric_refinement)
   {

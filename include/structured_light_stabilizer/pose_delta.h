@@ -54,9 +54,10 @@ struct PoseDeltaInput
   int rows = 0;
   int cols = 0;
   std::vector<Eigen::Vector3d> points;  // rows * cols, camera frame, NaN = missing
-  // Optional image of the same instant: CV_8UC1, or CV_8UC3 whose channel
-  // `texture_channel` carries the rock texture with the least dot light (the
-  // red channel for green dots: 2 in bgr8, 0 in rgb8).
+  // Optional image of the same instant: CV_8UC1 or CV_16UC1, or CV_8UC3 or
+  // CV_16UC3 whose channel `texture_channel` carries the rock texture with the
+  // least dot light (the red channel for green dots: 2 in bgr8/bgr16, 0 in
+  // rgb8/rgb16). 16-bit pixels are MSB-aligned (ROS's 16-bit encodings).
   cv::Mat image;
   int texture_channel = 2;
   // Time of the frame (seconds, one clock for the stream); NaN = unknown

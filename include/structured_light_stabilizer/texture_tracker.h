@@ -1,7 +1,9 @@
 // Tracks the rock's own texture between a reference image and the current
 // one, ROS-free.
 //
-// Contract: images are 8-bit, one channel or three; of a 3-channel image only
+// Contract: images are 8- or 16-bit (CV_8UC1, CV_8UC3, CV_16UC1, CV_16UC3; 16-bit
+// pixels MSB-aligned, as ROS's 16-bit encodings, read in 8-bit levels without
+// rounding), one channel or three; of a 3-channel image only
 // `channel` is used (the caller picks the one in which the projected dots are
 // weakest: red for green dots), and only inside the tracked area. Pixel
 // coordinates follow OpenCV (centres at integers), full-image coordinates in
@@ -77,6 +79,11 @@ class TextureTracker
 {
 public:
   explicit TextureTracker(const TextureTrackerParams& config = TextureTrackerParams()) : config_(config) {}
+
+  // 16-bit pixel values to 8-bit levels (the thresholds' unit).
+  static constexpr double k16BitTo8Bit = 255.0 / 65535.0;
+  // An image of a type this tracker reads (see the contract).
+  static bool readable(const cv::Mat& image);
 
   // Chooses features in `region` of `image`, at least dot_clearance_px away
   // from every dot in `dots`. Returns the number of features kept.
@@ -216,7 +223,8 @@ private:
   // and clear of the dots; *full gets the full-image position.
   bool accept(const cv::Point2f& p, int level, const std::vector<cv::Point2f>& dots, cv::Point2f* full) const;
 
-  // The `roi` part of `image` as one 8-bit channel (a view when possible).
+  // The `roi` part of `image` as one 8-bit channel (a view when possible;
+  // 16-bit images rounded to 8 bits: the Lucas-Kanade pyramid's input).
   static cv::Mat channelOf(const cv::Mat& image, int channel, const cv::Rect& roi);
   cv::Mat prepare(const cv::Mat& image, int channel, const cv::Rect& roi) const;
   bool nearDot(const cv::Point2f& p, const std::vector<cv::Point2f>& dots) const;
@@ -243,6 +251,7 @@ private:
   bool frame_pyramid_ready_ = false;    // built for the current frame (on its first pyramidal track)
   cv::Mat scratch_;                     // the tracked channel, 8-bit
   std::vector<uint16_t> row_sums_;      // one row of a pyrDown step's vertical sums
+  std::vector<uint32_t> row_sums16_;    // the same for 16-bit images
   bool frame_ok_ = false;               // setFrame() succeeded for the current frame
   // Per feature: its last warped template and the inverse warp it was made with.
   struct WarpCache

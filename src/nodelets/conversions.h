@@ -15,7 +15,9 @@
 #include <Eigen/Geometry>
 #include <geometry_msgs/PoseWithCovariance.h>
 #include <geometry_msgs/Transform.h>
+#include <opencv2/core.hpp>
 #include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <std_msgs/Header.h>
 
@@ -23,6 +25,7 @@
 #include "structured_light_stabilizer/camera_model.h"
 #include "structured_light_stabilizer/se3.h"
 #include "structured_light_stabilizer/spot.h"
+#include "structured_light_stabilizer/spot_detector.h"
 
 namespace structured_light_stabilizer
 {
@@ -78,5 +81,15 @@ Eigen::Isometry3d isometryFromTransform(const geometry_msgs::Transform& T);
 // C' = J C J^T with J = -diag(R^T, R^T). Non-finite covariance entries stay
 // non-finite.
 geometry_msgs::PoseWithCovariance currentPoseInReference(const Eigen::Isometry3d& T, const Matrix6d& covariance);
+
+// Why an image message cannot be read as `format` (empty when it can): empty,
+// a step shorter than a row, data shorter than the rows, an odd step for
+// 16-bit samples. Refuse with a clear message instead of an OpenCV abort.
+std::string imageInconsistency(const sensor_msgs::Image& msg, PixelFormat format);
+
+// A cv::Mat over a consistent message's buffer (zero copy, its step
+// honoured): valid while the message lives; 16-bit big-endian data is
+// byte-swapped into *swapped first (then valid while *swapped is).
+cv::Mat imageView(const sensor_msgs::Image& msg, PixelFormat format, cv::Mat* swapped);
 
 }  // namespace structured_light_stabilizer

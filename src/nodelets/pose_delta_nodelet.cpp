@@ -382,7 +382,7 @@ private:
                                                  [](const Eigen::Vector3d& p) { return p.allFinite(); });
     input.stamp_s = cloud->header.stamp.toSec();
     if (image && estimator_.params().use_texture)
-      prepareImage(image, &input);
+      prepareImage(image, &input, &swapped_[0]);
     if (estimator_.params().use_texture)
       prepareAmbient(ambient_before, ambient_after, &input);
     const PoseDeltaResult r = estimator_.process(input);
@@ -409,18 +409,31 @@ private:
   }
 
   // Picks the image channel with the rock's texture and the least dot light.
-  void prepareImage(const sensor_msgs::ImageConstPtr& image, PoseDeltaInput* input)
+  // bgr8, rgb8, mono8 and their 16-bit kinds are read as they are (a view of
+  // the message, 16 bits at full depth; *swapped holds a big-endian 16-bit
+  // image byte-swapped); other encodings are converted to bgr8.
+  void prepareImage(const sensor_msgs::ImageConstPtr& image, PoseDeltaInput* input, cv::Mat* swapped)
   {
     try
     {
       const std::string& e = image->encoding;
-      if (e == enc::BGR8 || e == enc::RGB8 || e == enc::MONO8)
+      const bool rgb = e == enc::RGB8 || e == enc::RGB16, mono = e == enc::MONO8 || e == enc::MONO16;
+      PixelFormat format = PixelFormat::kBgr8;
+      if ((rgb || mono || e == enc::BGR8 || e == enc::BGR16) && pixelFormatFromEncoding(e, &format))
       {
-        input->image = cv_bridge::toCvShare(image)->image;
-        input->texture_channel = e == enc::RGB8 ? 0 : 2;
-        if (e == enc::MONO8 && !warned_mono_)
+        const std::string bad = imageInconsistency(*image, format);
+        if (!bad.empty())
         {
-          NODELET_WARN("PoseDelta: mono8 images: the texture is tracked without the colour that hides the dots");
+          NODELET_ERROR_THROTTLE(5.0, "PoseDelta: image not usable for the texture (%s)", bad.c_str());
+          input->image = cv::Mat();
+          return;
+        }
+        input->image = imageView(*image, format, swapped);
+        input->texture_channel = rgb ? 0 : 2;
+        if (mono && !warned_mono_)
+        {
+          NODELET_WARN("PoseDelta: %s images: the texture is tracked without the colour that hides the dots",
+                       e.c_str());
           warned_mono_ = true;
         }
       }
@@ -455,13 +468,13 @@ private:
     PoseDeltaInput ambient;
     if (first)
     {
-      prepareImage(first, &ambient);
+      prepareImage(first, &ambient, &swapped_[1]);
       input->ambient_image = ambient.image;
       input->ambient_stamp_s = first->header.stamp.toSec();
     }
     if (second)
     {
-      prepareImage(second, &ambient);
+      prepareImage(second, &ambient, &swapped_[2]);
       input->ambient_after_image = ambient.image;
       input->ambient_after_stamp_s = second->header.stamp.toSec();
     }
@@ -576,6 +589,7 @@ private:
   ros::Time last_tf_stamp_;
   bool warned_mono_ = false;
   bool warned_encoding_ = false;
+  cv::Mat swapped_[3];  // big-endian 16-bit frame, ambient before, after: byte-swapped copies
 
   // Diagnostics (under buffer_mutex_).
   std::unique_ptr<diagnostic_updater::TopicDiagnostic> pose_diagnostic_;

@@ -142,47 +142,6 @@ void configFromSearchParams(const SpotSearchParams& p, Config* config)
   config->full_search_every = p.full_search_every;
 }
 
-// Why an image message cannot be read as `format` (empty when it can):
-// style weak spot 2, refuse with a clear message instead of an OpenCV abort.
-std::string inconsistency(const sensor_msgs::Image& msg, PixelFormat format)
-{
-  const size_t bytes = static_cast<size_t>(channelCount(format)) * (matDepth(format) == CV_16U ? 2 : 1);
-  const size_t row_bytes = static_cast<size_t>(msg.width) * bytes;
-  const std::string what = std::to_string(msg.width) + "x" + std::to_string(msg.height) + " " + msg.encoding;
-  if (msg.width == 0 || msg.height == 0)
-    return "inconsistent image (" + what + "): empty";
-  if (msg.step < row_bytes)
-    return "inconsistent image (" + what + "): step " + std::to_string(msg.step) +
-           " < width * channels * bytes per sample " + std::to_string(row_bytes);
-  const size_t needed = static_cast<size_t>(msg.step) * (msg.height - 1) + row_bytes;
-  if (msg.data.size() < needed)
-    return "inconsistent image (" + what + ", step " + std::to_string(msg.step) + "): truncated, " +
-           std::to_string(msg.data.size()) + " data bytes of the " + std::to_string(needed) + " needed";
-  if (matDepth(format) == CV_16U && msg.step % 2 != 0)
-    return "inconsistent image (" + what + "): odd step " + std::to_string(msg.step) + " for 16-bit samples";
-  return "";
-}
-
-// A cv::Mat over the message's buffer (zero copy, its step honoured); 16-bit
-// big-endian data is byte-swapped into *swapped first.
-cv::Mat imageView(const sensor_msgs::Image& msg, PixelFormat format, cv::Mat* swapped)
-{
-  const cv::Mat view(static_cast<int>(msg.height), static_cast<int>(msg.width), matType(format),
-                     const_cast<uint8_t*>(msg.data.data()), msg.step);
-  const uint16_t one = 1;
-  const bool host_big_endian = *reinterpret_cast<const uint8_t*>(&one) == 0;
-  if (matDepth(format) != CV_16U || bool(msg.is_bigendian) == host_big_endian)
-    return view;
-  view.copyTo(*swapped);
-  for (int y = 0; y < swapped->rows; ++y)
-  {
-    uint16_t* row = swapped->ptr<uint16_t>(y);
-    for (int x = 0; x < swapped->cols * swapped->channels(); ++x)
-      row[x] = static_cast<uint16_t>((row[x] >> 8) | (row[x] << 8));
-  }
-  return *swapped;
-}
-
 // The share of the frame's pixels in the regions (which may overlap a little).
 double searchedFraction(const std::vector<cv::Rect>& regions, const cv::Size& frame)
 {
@@ -432,7 +391,7 @@ private:
       return "camera/image_ambient is " + std::to_string(amb.width) + "x" + std::to_string(amb.height) + " " +
              amb.encoding + ", the frame " + std::to_string(frame.width) + "x" + std::to_string(frame.height) + " " +
              frame.encoding;
-    return inconsistency(amb, format);
+    return imageInconsistency(amb, format);
   }
 
   // The ambient image for this frame in strobe mode: two projector-off frames
@@ -498,7 +457,7 @@ private:
       return;
     }
     warnOnceAboutFormat(format);
-    const std::string bad = inconsistency(*msg, format);
+    const std::string bad = imageInconsistency(*msg, format);
     if (!bad.empty())
     {
       dropFrame(bad + "; frame dropped");

@@ -47,6 +47,9 @@ struct ChainScene
   // PoseDelta gets the frame as mono8 (luminance): dots as bright as the
   // rock's texture in the same channel, as on a monochrome camera.
   bool mono = false;
+  // With a 16-bit camera (sim.sensor.output bgr16): PoseDelta gets the frame
+  // converted to bgr8 (as its nodelet did before it read 16 bits).
+  bool pose_reads_8bit = false;
 };
 
 // The rig jitter of the issue: +-10 mm, +-1 deg per axis.
@@ -64,8 +67,10 @@ inline SimulatorParams chainBase(uint32_t seed)
 // "flat_textured", "textureless", "rough" (the default rock), "strobed" (the
 // default rock with the ambient frames of 60 Hz strobing one field before and
 // after each frame; "strobed_one_side": only the one before), "mono" (the
-// default rock, PoseDelta given the frame as mono8). Unknown names give the
-// default rock.
+// default rock, PoseDelta given the frame as mono8), "bgr16" (the default
+// rock from a 12-bit colour camera, PoseDelta reading its 16 bits) and
+// "bgr16_as_bgr8" (the same frames, PoseDelta given them as bgr8). Unknown
+// names give the default rock.
 inline ChainScene chainScene(const std::string& name, uint32_t seed)
 {
   ChainScene s;
@@ -92,6 +97,12 @@ inline ChainScene chainScene(const std::string& name, uint32_t seed)
     s.sim.rock.relief_m = 0.0;
   else if (name == "mono")
     s.mono = true;
+  else if (name == "bgr16" || name == "bgr16_as_bgr8")
+  {
+    s.sim.sensor.output = SensorOutput::kBgr16;  // a 12-bit colour camera
+    s.sim.sensor.output_bits = 12;
+    s.pose_reads_8bit = name == "bgr16_as_bgr8";
+  }
   else if (name == "strobed" || name == "strobed_one_side")
   {
     s.strobe_gap_s = -1.0 / 60.0;
@@ -133,7 +144,9 @@ public:
     const SimFrame f = sim_.render(t);
     ChainFrame out;
     out.truth = f.delta;
-    const SpotDetectionResult det = detector_.detect(f.image, PixelFormat::kBgr8);
+    PixelFormat format = PixelFormat::kBgr8;
+    pixelFormatFromEncoding(f.encoding, &format);
+    const SpotDetectionResult det = detector_.detect(f.image, format);
     Spots spots = det.ok ? det.spots : Spots();
     out.spots = static_cast<int>(spots.size());
     std::uniform_real_distribution<double> uni(0.0, 1.0);
@@ -149,6 +162,8 @@ public:
     out.input.texture_channel = 2;  // bgr8: red carries the rock, not the green dots
     if (scene_.mono)
       cv::cvtColor(f.image, out.input.image, cv::COLOR_BGR2GRAY);
+    if (scene_.pose_reads_8bit && f.image.depth() == CV_16U)
+      f.image.convertTo(out.input.image, CV_8U, 1.0 / 257.0);
     out.input.stamp_s = t;
     if (scene_.strobe_gap_s != 0.0)
     {
