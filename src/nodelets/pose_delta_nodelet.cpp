@@ -424,7 +424,7 @@ private:
         const std::string bad = imageInconsistency(*image, format);
         if (!bad.empty())
         {
-          NODELET_ERROR_THROTTLE(5.0, "PoseDelta: image not usable for the texture (%s)", bad.c_str());
+          unusableImage(bad);
           input->image = cv::Mat();
           return;
         }
@@ -453,9 +453,23 @@ private:
     }
     catch (const cv_bridge::Exception& ex)
     {
-      NODELET_ERROR_THROTTLE(5.0, "PoseDelta: image not usable for the texture (%s)", ex.what());
+      unusableImage(ex.what());
       input->image = cv::Mat();
     }
+  }
+
+  // An image the texture cannot read (the frame goes on with the geometry):
+  // each kind of problem logged at once, then at most every 5 s (drop_log.h).
+  void unusableImage(const std::string& why)
+  {
+    int suppressed = 0;
+    if (!image_log_.shouldLog(why, &suppressed))
+      return;
+    if (suppressed > 0)
+      NODELET_ERROR("PoseDelta: image not usable for the texture (%s; %d more of this kind since the last message)",
+                    why.c_str(), suppressed);
+    else
+      NODELET_ERROR("PoseDelta: image not usable for the texture (%s)", why.c_str());
   }
 
   // The ambient frames around a strobed frame, as the texture images (the
@@ -589,6 +603,7 @@ private:
   ros::Time last_tf_stamp_;
   bool warned_mono_ = false;
   bool warned_encoding_ = false;
+  DropLog image_log_;   // images the texture cannot read
   cv::Mat swapped_[3];  // big-endian 16-bit frame, ambient before, after: byte-swapped copies
 
   // Diagnostics (under buffer_mutex_).

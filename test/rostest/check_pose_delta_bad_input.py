@@ -1,7 +1,11 @@
 #!/usr/bin/env python3
 """PoseDelta bad input (pose_delta_bad_input.test): every bad cloud gives a
 pose_delta with valid = false and a status naming the problem, the lock
-service refuses while no map has arrived, and the node keeps working."""
+service refuses while no map has arrived, and the node keeps working. With
+the texture on, images that cannot be read (truncated data, an odd step for
+16 bits, an encoding cv_bridge does not know, a truncated frame of an
+encoding to convert) are refused with an ERROR that
+says why, and each cloud still gets its pose_delta from the geometry."""
 import math
 import threading
 import time
@@ -10,7 +14,8 @@ import unittest
 import rospy
 import rostest
 from sensor_msgs import point_cloud2
-from sensor_msgs.msg import PointCloud2, PointField
+from rosgraph_msgs.msg import Log
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from structured_light_stabilizer.msg import PoseDelta
@@ -40,6 +45,26 @@ def cloud(points, rows, cols, fields=FIELDS, stamp=None):
     msg.row_step = msg.point_step * cols
     msg.is_dense = False
     return msg
+
+
+def image(stamp, width, height, encoding, step, data):
+    msg = Image()
+    msg.header.frame_id, msg.header.stamp = "camera_optical_frame", stamp
+    msg.width, msg.height, msg.encoding, msg.step, msg.data = width, height, encoding, step, data
+    return msg
+
+
+def camera_info(stamp, width, height):
+    info = CameraInfo()
+    info.header.frame_id, info.header.stamp = "camera_optical_frame", stamp
+    info.width, info.height = width, height
+    f, cx, cy = 0.8 * width, (width - 1) / 2.0, (height - 1) / 2.0
+    info.distortion_model = "plumb_bob"
+    info.D = [0.0] * 5
+    info.K = [f, 0, cx, 0, f, cy, 0, 0, 1]
+    info.R = [1, 0, 0, 0, 1, 0, 0, 0, 1]
+    info.P = [f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0]
+    return info
 
 
 class PoseDeltaBadInput(unittest.TestCase):
@@ -112,6 +137,58 @@ class PoseDeltaBadInput(unittest.TestCase):
         self.assertTrue(out.valid, out.status)
         self.assertLess(abs(out.transform.translation.x) + abs(out.transform.translation.y) +
                         abs(out.transform.translation.z), 1e-6)
+
+    def test_unreadable_images_with_the_texture_on(self):
+        errors, poses, lock = [], {}, threading.Lock()
+
+        def on_log(msg):
+            if msg.level >= Log.ERROR and "PoseDelta" in msg.msg:
+                with lock:
+                    errors.append(msg.msg)
+
+        def on_pose(msg):
+            with lock:
+                poses[msg.header.stamp] = msg
+
+        log_sub = rospy.Subscriber("/rosout", Log, on_log, queue_size=50)
+        rospy.Subscriber("textured/pose_delta", PoseDelta, on_pose, queue_size=20)
+        pub_cloud = rospy.Publisher("textured/points", PointCloud2, queue_size=5)
+        pub_image = rospy.Publisher("textured/camera/image_raw", Image, queue_size=5)
+        pub_info = rospy.Publisher("textured/camera/camera_info", CameraInfo, queue_size=5)
+        deadline = time.time() + 20.0
+        while time.time() < deadline and not (pub_cloud.get_num_connections() and pub_image.get_num_connections()
+                                              and pub_info.get_num_connections() and log_sub.get_num_connections()):
+            time.sleep(0.1)
+        self.assertTrue(pub_image.get_num_connections(), "the textured PoseDelta did not subscribe to its images")
+        w, h = 64, 48
+        cases = [
+            ("truncated bgr16", "bgr16", w * 6, bytes(w * 6 * (h - 1)), "truncated"),
+            ("odd step bgr16", "bgr16", w * 6 + 1, bytes((w * 6 + 1) * h), "odd step"),
+            ("short step bgr8", "bgr8", w * 3 - 1, bytes(w * 3 * h), "step"),
+            ("unknown encoding", "no_such_encoding", w, bytes(w * h), "texture"),
+            # cv_bridge refuses it: "height * step != size".
+            ("truncated bayer_rggb8 (converted)", "bayer_rggb8", w, bytes(w * (h - 2)), "size"),
+        ]
+        good = rock_points()
+        for name, encoding, step, data, fragment in cases:
+            stamp = rospy.Time.now()
+            with lock:
+                del errors[:]
+            pub_info.publish(camera_info(stamp, w, h))
+            pub_image.publish(image(stamp, w, h, encoding, step, data))
+            time.sleep(0.2)
+            pub_cloud.publish(cloud(good, 10, 10, stamp=stamp))
+            deadline = time.time() + 5.0
+            while time.time() < deadline:
+                with lock:
+                    if stamp in poses and any(fragment in e for e in errors):
+                        break
+                time.sleep(0.05)
+            with lock:
+                got, said = poses.get(stamp), list(errors)
+            print("%s: pose_delta %s, errors %s" % (name, "received" if got else "missing", said))
+            self.assertIsNotNone(got, "%s: no pose_delta for its cloud" % name)
+            self.assertTrue(any(fragment in e for e in said), "%s: no ERROR naming '%s': %s" % (name, fragment, said))
 
 
 if __name__ == "__main__":
