@@ -19,6 +19,7 @@ correct again (spots vs true centroids, points vs true points, pose_delta
 valid and close to the true motion since the reference)."""
 import math
 import os
+import sys
 import threading
 import time
 import unittest
@@ -36,6 +37,9 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from structured_light_stabilizer.msg import CentroidArray, PoseDelta
 from structured_light_stabilizer.evaluation import cloud_xyz, pose_error, transform_matrix
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from sample_msgs import camera_info  # noqa: E402
 
 PKG = "structured_light_stabilizer"
 BIG = 1 << 24  # rospy socket buffer for 3 MB images
@@ -66,21 +70,6 @@ def image(width, height, encoding, step=None, data=None, fill=0):
     rows = height * 3 // 2 if encoding == "nv21" else height
     msg.data = data if data is not None else bytes([fill]) * (msg.step * rows)
     return msg
-
-
-def camera_info(width, height, fx, fy=None, cx=None, cy=None):
-    info = CameraInfo()
-    info.header.frame_id = "camera_optical_frame"
-    info.width, info.height = width, height
-    fy = fx if fy is None else fy
-    cx = (width - 1) / 2.0 if cx is None else cx
-    cy = (height - 1) / 2.0 if cy is None else cy
-    info.distortion_model = "plumb_bob"
-    info.D = [0.0] * 5
-    info.K = [fx, 0, cx, 0, fy, cy, 0, 0, 1]
-    info.R = [1, 0, 0, 0, 1, 0, 0, 0, 1]
-    info.P = [fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0]
-    return info
 
 
 class HostileInputs(unittest.TestCase):

@@ -7,6 +7,8 @@ the texture on, images that cannot be read (truncated data, an odd step for
 encoding to convert) are refused with an ERROR that
 says why, and each cloud still gets its pose_delta from the geometry."""
 import math
+import os
+import sys
 import threading
 import time
 import unittest
@@ -19,6 +21,9 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from structured_light_stabilizer.msg import PoseDelta
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from sample_msgs import camera_info  # noqa: E402
 
 PKG = "structured_light_stabilizer"
 FIELDS = [PointField("x", 0, PointField.FLOAT32, 1), PointField("y", 4, PointField.FLOAT32, 1),
@@ -52,19 +57,6 @@ def image(stamp, width, height, encoding, step, data):
     msg.header.frame_id, msg.header.stamp = "camera_optical_frame", stamp
     msg.width, msg.height, msg.encoding, msg.step, msg.data = width, height, encoding, step, data
     return msg
-
-
-def camera_info(stamp, width, height):
-    info = CameraInfo()
-    info.header.frame_id, info.header.stamp = "camera_optical_frame", stamp
-    info.width, info.height = width, height
-    f, cx, cy = 0.8 * width, (width - 1) / 2.0, (height - 1) / 2.0
-    info.distortion_model = "plumb_bob"
-    info.D = [0.0] * 5
-    info.K = [f, 0, cx, 0, f, cy, 0, 0, 1]
-    info.R = [1, 0, 0, 0, 1, 0, 0, 0, 1]
-    info.P = [f, 0, cx, 0, 0, f, cy, 0, 0, 0, 1, 0]
-    return info
 
 
 class PoseDeltaBadInput(unittest.TestCase):
@@ -174,7 +166,9 @@ class PoseDeltaBadInput(unittest.TestCase):
             stamp = rospy.Time.now()
             with lock:
                 del errors[:]
-            pub_info.publish(camera_info(stamp, w, h))
+            info = camera_info(w, h, 0.8 * w)
+            info.header.stamp = stamp
+            pub_info.publish(info)
             pub_image.publish(image(stamp, w, h, encoding, step, data))
             time.sleep(0.2)
             pub_cloud.publish(cloud(good, 10, 10, stamp=stamp))
