@@ -110,11 +110,17 @@ struct SunlitGrid
     const int ci = std::min(std::max(static_cast<int>(gxf), 0), nx - 1);
     const int cj = std::min(std::max(static_cast<int>(gyf), 0), ny - 1);
     const float tx = gxf - ci, ty = gyf - cj;
-    const float* p00 = hs + 4 * (cj * stride + ci);
+    blend(4 * (cj * stride + ci), (1 - tx) * (1 - ty) * scale, tx * (1 - ty) * scale, (1 - tx) * ty * scale,
+          tx * ty * scale, out);
+  }
+
+  // The four vertices of the cell whose first vertex is at float `offset`
+  // of hs, weighted (w00, w10, w01, w11), into out[0..3]: one 4-lane
+  // register per vertex (B, G, R, h).
+  void blend(size_t offset, float w00, float w10, float w01, float w11, float* out) const
+  {
+    const float* p00 = hs + offset;
     const float* p01 = p00 + 4 * stride;
-    const float w00 = (1 - tx) * (1 - ty) * scale, w10 = tx * (1 - ty) * scale;
-    const float w01 = (1 - tx) * ty * scale, w11 = tx * ty * scale;
-    // One 4-lane register per vertex (B, G, R, h).
     const cv::v_float32x4 r = cv::v_load(p00) * cv::v_setall_f32(w00) + cv::v_load(p00 + 4) * cv::v_setall_f32(w10) +
                               cv::v_load(p01) * cv::v_setall_f32(w01) + cv::v_load(p01 + 4) * cv::v_setall_f32(w11);
     cv::v_store(out, r);
@@ -577,13 +583,8 @@ void RockSampling::sharpenRow(const RockSurface& rock, const float* __restrict h
     {
       if (std::isnan(x[k]))
         continue;
-      const float* p00 = grid.hs + static_cast<size_t>(o[k]);
-      const float* p01 = p00 + 4 * grid.stride;
-      const cv::v_float32x4 r =
-          cv::v_load(p00) * cv::v_setall_f32(w[0][k]) + cv::v_load(p00 + 4) * cv::v_setall_f32(w[1][k]) +
-          cv::v_load(p01) * cv::v_setall_f32(w[2][k]) + cv::v_load(p01 + 4) * cv::v_setall_f32(w[3][k]);
       float out[4];
-      cv::v_store(out, r);
+      grid.blend(static_cast<size_t>(o[k]), w[0][k], w[1][k], w[2][k], w[3][k], out);
       float* l = L + 3 * (u + k);
       l[0] = out[0];
       l[1] = out[1];
