@@ -9,6 +9,7 @@
 #include <vector>
 
 #include <opencv2/core.hpp>
+#include <opencv2/core/hal/intrin.hpp>
 
 #include "structured_light_stabilizer/detail/math.h"
 #include "spot_detector_fast_stages.h"
@@ -25,13 +26,19 @@ struct Model
   double a, x, y, s;  // amplitude, centre (pixels of the frame), sigma
 };
 
+constexpr int kCols = 2 * PlaneWindow::kMaxRadius + 2;  // 2H + 1 rounded up to two lanes
+
 // The window's usable pixels (always the same set, so that sums of squares
-// of different models compare), by offset from the window's centre.
+// of different models compare), as rows of the window: u 1 where a pixel is
+// used and 0 elsewhere, uv = u v; each row's used columns lie in [c0, c1).
 struct Samples
 {
-  int cx = 0, cy = 0, H = 0;
-  std::vector<int> dx, dy;
-  std::vector<double> v;
+  int cx = 0, cy = 0, H = 0, count = 0, rows = 0, stride = 0;
+  double vv = 0;  // sum of v^2 over the used pixels
+  std::vector<double> u, uv;
+  std::vector<int> c0, c1;
+  const double* uRow(int r) const { return u.data() + r * stride; }
+  const double* uvRow(int r) const { return uv.data() + r * stride; }
 };
 
 // Those within `radius` of (x, y) only: farther out a dot adds nothing but
@@ -41,88 +48,177 @@ void usableSamples(const WeightWindow& w, double x, double y, double radius, Sam
   s->cx = w.cx;
   s->cy = w.cy;
   s->H = w.H;
-  s->dx.clear();
-  s->dy.clear();
-  s->v.clear();
+  s->rows = 2 * w.H + 1;
+  s->stride = (s->rows + 1) & ~1;
+  s->count = 0;
+  s->vv = 0;
+  s->u.assign(s->rows * s->stride, 0.0);
+  s->uv.assign(s->rows * s->stride, 0.0);
+  s->c0.assign(s->rows, 0);
+  s->c1.assign(s->rows, 0);
   const double r2 = radius * radius;
   for (int dy = -w.H; dy <= w.H; ++dy)
+  {
+    const int r = dy + w.H;
+    int first = s->stride, last = -1;
     for (int dx = -w.H; dx <= w.H; ++dx)
     {
-      const int i = (dy + w.H) * w.stride + dx + w.H;
+      const int i = r * w.stride + dx + w.H;
       if (!w.usable[i] || detail::square(w.cx + dx - x) + detail::square(w.cy + dy - y) > r2)
         continue;
-      s->dx.push_back(dx);
-      s->dy.push_back(dy);
-      s->v.push_back(w.vals[i]);
+      const int c = dx + w.H;
+      s->u[r * s->stride + c] = 1.0;
+      s->uv[r * s->stride + c] = w.vals[i];
+      s->vv += detail::square(double(w.vals[i]));
+      ++s->count;
+      first = std::min(first, c);
+      last = c;
     }
+    // Whole lanes of two: the padding holds zeros.
+    s->c0[r] = last < 0 ? 0 : first & ~1;
+    s->c1[r] = last < 0 ? 0 : (last + 2) & ~1;
+  }
 }
 
-// The separable Gaussian of a model over the window: g(dx, dy) = gx[dx + H] gy[dy + H].
-struct Profile
+// The sums of a model over the used pixels, by the separability of its
+// Gaussian g = gx(ex) gy(ey): for every row, A_k = sum u gx^2 ex^k (k = 0..4)
+// and B_k = sum u v gx ex^k (k = 0..2), then weighted by gy, gy^2 and powers
+// of the row's ey. Each term of J^T J, J^T r and the sum of squares is one
+// of these (see normalEquations): a few multiply-adds per pixel instead of
+// the residual's Jacobian evaluated at each.
+struct ModelSums
 {
-  double gx[2 * PlaneWindow::kMaxRadius + 1], gy[2 * PlaneWindow::kMaxRadius + 1];
-  Profile(const Samples& s, const Model& m)
-  {
-    const double k = -0.5 / (m.s * m.s);
-    for (int d = -s.H; d <= s.H; ++d)
-    {
-      gx[d + s.H] = std::exp(k * detail::square(s.cx + d - m.x));
-      gy[d + s.H] = std::exp(k * detail::square(s.cy + d - m.y));
-    }
-  }
-  double at(const Samples& s, size_t i) const { return gx[s.dx[i] + s.H] * gy[s.dy[i] + s.H]; }
+  double P[5] = {0, 0, 0, 0, 0};  // sum gy^2 A_k
+  double E[3] = {0, 0, 0};        // sum gy^2 ey A_k
+  double F[3] = {0, 0, 0};        // sum gy^2 ey^2 A_k
+  double G0 = 0, H0 = 0;          // sum gy^2 ey^3 A_0, sum gy^2 ey^4 A_0
+  double R[3] = {0, 0, 0};        // sum gy B_k
+  double Q0 = 0, Q2 = 0;          // sum gy ey B_0, sum gy ey^2 B_0
 };
 
-// Normal equations of the residuals v - a exp(-r^2 / 2 s^2) and their sum
-// of squares (the ten distinct terms of J^T J accumulated by hand: this runs
-// a few times per iteration for every clipped dot).
+// g[j] = exp(k (e0 + j)^2) for j in [0, n), by the recurrence
+// g(e + 1) = g(e) exp(k (2e + 1)) outwards from the sample nearest the
+// centre (where g is largest, so that an underflow only meets values that
+// are below it anyway): four exp() instead of n, to 1e-13 relative.
+void gaussianRun(double e0, double k, int n, double* g)
+{
+  const int c = std::min(n - 1, std::max(0, static_cast<int>(std::lround(-e0))));
+  const double ec = e0 + c, step = std::exp(2.0 * k);
+  g[c] = std::exp(k * ec * ec);
+  double up = std::exp(k * (2.0 * ec + 1.0)), down = std::exp(k * (1.0 - 2.0 * ec));
+  for (int j = c + 1; j < n; ++j, up *= step)
+    g[j] = g[j - 1] * up;
+  for (int j = c - 1; j >= 0; --j, down *= step)
+    g[j] = g[j + 1] * down;
+}
+
+// kShape false: only P[0] and R[0] (what the best amplitude needs).
+template <bool kShape>
+ModelSums modelSums(const Samples& s, const Model& m)
+{
+  const double k = -0.5 / (m.s * m.s);
+  alignas(16) double w[5][kCols], q[3][kCols];
+  double gx[kCols], gy[kCols];
+  gaussianRun(s.cx - s.H - m.x, k, s.rows, gx);
+  gaussianRun(s.cy - s.H - m.y, k, s.rows, gy);
+  for (int c = 0; c < s.stride; ++c)
+  {
+    const double ex = s.cx + c - s.H - m.x;
+    const double g = c < s.rows ? gx[c] : 0.0;
+    q[0][c] = g;
+    q[1][c] = g * ex;
+    q[2][c] = g * ex * ex;
+    w[0][c] = g * g;
+    for (int p = 1; p < 5; ++p)
+      w[p][c] = kShape ? w[p - 1][c] * ex : 0.0;
+  }
+  ModelSums t;
+  for (int r = 0; r < s.rows; ++r)
+  {
+    if (s.c1[r] <= s.c0[r])
+      continue;
+    const double* u = s.uRow(r);
+    const double* uv = s.uvRow(r);
+    double A[5] = {0, 0, 0, 0, 0}, B[3] = {0, 0, 0};
+#if CV_SIMD128_64F
+    // Eight named accumulators (an array of them is kept in memory).
+    cv::v_float64x2 a0 = cv::v_setzero_f64(), a1 = a0, a2 = a0, a3 = a0, a4 = a0, b0 = a0, b1 = a0, b2 = a0;
+    for (int c = s.c0[r]; c < s.c1[r]; c += 2)
+    {
+      const cv::v_float64x2 vu = cv::v_load(u + c), vuv = cv::v_load(uv + c);
+      a0 = cv::v_fma(vu, cv::v_load_aligned(w[0] + c), a0);
+      b0 = cv::v_fma(vuv, cv::v_load_aligned(q[0] + c), b0);
+      if constexpr (kShape)
+      {
+        a1 = cv::v_fma(vu, cv::v_load_aligned(w[1] + c), a1);
+        a2 = cv::v_fma(vu, cv::v_load_aligned(w[2] + c), a2);
+        a3 = cv::v_fma(vu, cv::v_load_aligned(w[3] + c), a3);
+        a4 = cv::v_fma(vu, cv::v_load_aligned(w[4] + c), a4);
+        b1 = cv::v_fma(vuv, cv::v_load_aligned(q[1] + c), b1);
+        b2 = cv::v_fma(vuv, cv::v_load_aligned(q[2] + c), b2);
+      }
+    }
+    A[0] = cv::v_reduce_sum(a0);
+    A[1] = cv::v_reduce_sum(a1);
+    A[2] = cv::v_reduce_sum(a2);
+    A[3] = cv::v_reduce_sum(a3);
+    A[4] = cv::v_reduce_sum(a4);
+    B[0] = cv::v_reduce_sum(b0);
+    B[1] = cv::v_reduce_sum(b1);
+    B[2] = cv::v_reduce_sum(b2);
+#else
+    for (int c = s.c0[r]; c < s.c1[r]; ++c)
+    {
+      for (int p = 0; p < 5; ++p)
+        A[p] += u[c] * w[p][c];
+      for (int p = 0; p < 3; ++p)
+        B[p] += uv[c] * q[p][c];
+    }
+#endif
+    const double ey = s.cy + r - s.H - m.y;
+    const double g = gy[r], g2 = g * g, ey2 = ey * ey;
+    for (int p = 0; p < 5; ++p)
+      t.P[p] += g2 * A[p];
+    for (int p = 0; p < 3; ++p)
+    {
+      t.E[p] += g2 * ey * A[p];
+      t.F[p] += g2 * ey2 * A[p];
+      t.R[p] += g * B[p];
+    }
+    t.G0 += g2 * ey2 * ey * A[0];
+    t.H0 += g2 * ey2 * ey2 * A[0];
+    t.Q0 += g * ey * B[0];
+    t.Q2 += g * ey2 * B[0];
+  }
+  return t;
+}
+
+// Normal equations of the residuals v - a g, g = exp(-r^2 / 2 s^2), and
+// their sum of squares. With c = 1 / s^2 the Jacobian's columns are g,
+// a g ex c, a g ey c and a g r^2 c / s; each product summed over the pixels
+// is a ModelSums term.
 double normalEquations(const Samples& s, const Model& m, cv::Matx44d* JtJ, cv::Vec4d* Jtr)
 {
-  const Profile p(s, m);
-  const double inv_s2 = 1.0 / (m.s * m.s);
-  double a[10] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0}, b[4] = {0, 0, 0, 0}, ss = 0;
-  for (size_t i = 0; i < s.v.size(); ++i)
-  {
-    const double ex = s.cx + s.dx[i] - m.x, ey = s.cy + s.dy[i] - m.y;
-    const double g = p.at(s, i), ag = m.a * g;
-    const double res = s.v[i] - ag;
-    const double j0 = g, j1 = ag * ex * inv_s2, j2 = ag * ey * inv_s2, j3 = ag * (ex * ex + ey * ey) * inv_s2 / m.s;
-    a[0] += j0 * j0;
-    a[1] += j0 * j1;
-    a[2] += j0 * j2;
-    a[3] += j0 * j3;
-    a[4] += j1 * j1;
-    a[5] += j1 * j2;
-    a[6] += j1 * j3;
-    a[7] += j2 * j2;
-    a[8] += j2 * j3;
-    a[9] += j3 * j3;
-    b[0] += j0 * res;
-    b[1] += j1 * res;
-    b[2] += j2 * res;
-    b[3] += j3 * res;
-    ss += res * res;
-  }
-  *JtJ = cv::Matx44d(a[0], a[1], a[2], a[3], a[1], a[4], a[5], a[6], a[2], a[5], a[7], a[8], a[3], a[6], a[8], a[9]);
-  *Jtr = cv::Vec4d(b[0], b[1], b[2], b[3]);
-  return ss;
+  const ModelSums t = modelSums<true>(s, m);
+  const double a = m.a, c = 1.0 / (m.s * m.s), ac = a * c, ac_s = ac / m.s;
+  const double a0 = t.P[0], a1 = ac * t.P[1], a2 = ac * t.E[0], a3 = ac_s * (t.P[2] + t.F[0]);
+  const double a4 = ac * ac * t.P[2], a5 = ac * ac * t.E[1], a6 = ac * ac_s * (t.P[3] + t.F[1]);
+  const double a7 = ac * ac * t.F[0], a8 = ac * ac_s * (t.E[2] + t.G0);
+  const double a9 = ac_s * ac_s * (t.P[4] + 2.0 * t.F[2] + t.H0);
+  *JtJ = cv::Matx44d(a0, a1, a2, a3, a1, a4, a5, a6, a2, a5, a7, a8, a3, a6, a8, a9);
+  *Jtr = cv::Vec4d(t.R[0] - a * t.P[0], ac * (t.R[1] - a * t.P[1]), ac * (t.Q0 - a * t.E[0]),
+                   ac_s * (t.R[2] + t.Q2 - a * (t.P[2] + t.F[0])));
+  return std::max(0.0, s.vv - 2.0 * a * t.R[0] + a * a * t.P[0]);
 }
 
 // The amplitude that fits best for the model's centre and sigma (linear),
 // and the sum of squares it leaves.
 double bestAmplitude(const Samples& s, Model* m)
 {
-  const Profile p(s, *m);
-  double vg = 0, gg = 0, vv = 0;
-  for (size_t i = 0; i < s.v.size(); ++i)
-  {
-    const double g = p.at(s, i);
-    vg += s.v[i] * g;
-    gg += g * g;
-    vv += s.v[i] * s.v[i];
-  }
+  const ModelSums t = modelSums<false>(s, *m);
+  const double vg = t.R[0], gg = t.P[0];
   m->a = gg > 0 ? vg / gg : 0.0;
-  return gg > 0 ? vv - vg * vg / gg : detail::kInf;
+  return gg > 0 ? s.vv - vg * vg / gg : detail::kInf;
 }
 
 // Levenberg-Marquardt on (a, x, y, s) from m (whose amplitude is set).
@@ -228,7 +324,7 @@ bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit)
 {
   thread_local Samples samples;  // buffers kept across calls
   usableSamples(w, fit->x, fit->y, 3.0 * fit->sigma + 2.0, &samples);
-  if (samples.v.size() < 8)
+  if (samples.count < 8)
     return false;
   Model best{0, 0, 0, 0};
   double best_ss = detail::kInf;
