@@ -178,15 +178,32 @@ inline double ambientValue(const PlaneWindow& w, int i, double added)
 // window with a clipped pixel needs the neighbours looked at.
 void markUsable(const PlaneWindow& pw, WeightWindow* win)
 {
-  const int H = pw.H;
-  win->any_clipped = false;
-  for (int dy = -H; dy <= H; ++dy)
-    for (int dx = -H; dx <= H; ++dx)
+  const int H = pw.H, n = 2 * H + 1, stride = pw.stride;
+  static_assert(PlaneWindow::kSample == 1, "usable is the sample bit");
+  uint8_t any = 0;
+  for (int r = 0; r < n; ++r)
+  {
+    const uint8_t* f = pw.flags + r * stride;
+    uint8_t* u = win->usable + r * stride;
+    int k = 0;
+#if CV_SIMD128
+    cv::v_uint8x16 acc = cv::v_setzero_u8();
+    const cv::v_uint8x16 one = cv::v_setall_u8(1);
+    for (; k + 16 <= n; k += 16)
     {
-      const uint8_t f = pw.flags[pw.index(dx, dy)];
-      win->usable[pw.index(dx, dy)] = static_cast<uint8_t>((f & PlaneWindow::kSample) != 0);
-      win->any_clipped = win->any_clipped || (f & PlaneWindow::kClipped);
+      const cv::v_uint8x16 v = cv::v_load(f + k);
+      cv::v_store(u + k, v & one);
+      acc = acc | v;
     }
+    any |= static_cast<uint8_t>(cv::v_reduce_max(acc & cv::v_setall_u8(PlaneWindow::kClipped)));
+#endif
+    for (; k < n; ++k)
+    {
+      u[k] = f[k] & PlaneWindow::kSample;
+      any |= f[k];
+    }
+  }
+  win->any_clipped = (any & PlaneWindow::kClipped) != 0;
   if (!win->any_clipped)
     return;
   for (int dy = -H; dy <= H; ++dy)
@@ -204,6 +221,66 @@ void markUsable(const PlaneWindow& pw, WeightWindow* win)
       if (dy < H)
         win->usable[pw.index(dx, dy + 1)] = 0;
     }
+}
+
+// One row of the weight field (see buildWeights): v = P / alpha at the
+// samples, 0 elsewhere and in the row's padding; the number of samples.
+struct WeightRow
+{
+  const float* other;  // base = signal - c * other
+  float c, gain, inv_mean, floor, lo, hi;
+  bool ambient, normalised;
+  int operator()(const PlaneWindow& pw, int row, float p0, float pbx, float* v) const;
+};
+
+int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, float* v) const
+{
+  const int n = 2 * pw.H + 1;
+  int count = 0, k = 0;
+#if CV_SIMD128
+  // The scalar loop's operations in the same order: the same floats.
+  const cv::v_float32x4 vc = cv::v_setall_f32(c), vg = cv::v_setall_f32(gain), vp0 = cv::v_setall_f32(p0),
+                        vpbx = cv::v_setall_f32(pbx), vmean = cv::v_setall_f32(inv_mean), vfl = cv::v_setall_f32(floor),
+                        vlo = cv::v_setall_f32(lo), vhi = cv::v_setall_f32(hi), zero = cv::v_setzero_f32();
+  const cv::v_uint32x4 sample_bit = cv::v_setall_u32(PlaneWindow::kSample), vn = cv::v_setall_u32(n);
+  cv::v_uint32x4 lane(0, 1, 2, 3), counted = cv::v_setzero_u32();
+  for (; k < pw.stride; k += 4, lane += cv::v_setall_u32(4))
+  {
+    const int i = row + k;
+    const cv::v_float32x4 sig = cv::v_load_aligned(pw.signal + i);
+    const cv::v_float32x4 added =
+        (sig - vc * cv::v_load_aligned(other + i) - (vp0 + vpbx * cv::v_cvt_f32(cv::v_reinterpret_as_s32(lane)))) * vg;
+    cv::v_float32x4 val = added;
+    if (normalised)
+    {
+      const cv::v_float32x4 amb = ambient ? cv::v_load_aligned(pw.ambient_signal + i) : sig - added;
+      val = added / cv::v_min(vhi, cv::v_max(vlo, (amb + vfl) * vmean));
+    }
+    const cv::v_uint32x4 is_sample = ((cv::v_load_expand_q(pw.flags + i) & sample_bit) == sample_bit) & (lane < vn);
+    cv::v_store_aligned(v + k, cv::v_select(cv::v_reinterpret_as_f32(is_sample), val, zero));
+    counted -= is_sample;  // all ones is -1
+  }
+  count = static_cast<int>(cv::v_reduce_sum(counted));
+#endif
+  for (; k < pw.stride; ++k)
+  {
+    const int i = row + k;
+    if (k >= n || !(pw.flags[i] & PlaneWindow::kSample))
+    {
+      v[k] = 0.0f;
+      continue;
+    }
+    ++count;
+    const float added = (pw.signal[i] - c * other[i] - (p0 + pbx * k)) * gain;
+    float alpha = 1.0f;
+    if (normalised)
+    {
+      const float amb = ambient ? pw.ambient_signal[i] : pw.signal[i] - added;
+      alpha = std::min(hi, std::max(lo, (amb + floor) * inv_mean));
+    }
+    v[k] = added / alpha;
+  }
+  return count;
 }
 
 // The weight field of a filled PlaneWindow: P = (base - plane) * gain, the
@@ -251,36 +328,22 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
   win->normalised = rs.normalise_albedo && d.ambient_known && mean_ambient >= 2.0 * floor;
   // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
   // (A mono window fills no reference plane: with kappa = 0 it subtracts 0 x signal, never 0 x garbage.)
-  const float* other = pw.ambient ? pw.ambient_signal : (d.kappa > 0.0 ? pw.reference : pw.signal);
-  const float c = pw.ambient ? 1.0f : static_cast<float>(d.kappa), gain = static_cast<float>(d.gain);
-  const float inv_mean = static_cast<float>(1.0 / (mean_ambient + floor)), fl = static_cast<float>(floor);
-  const float lo = static_cast<float>(1.0 / kAlphaMax), hi = static_cast<float>(kAlphaMax);
+  WeightRow weigh;
+  weigh.other = pw.ambient ? pw.ambient_signal : (d.kappa > 0.0 ? pw.reference : pw.signal);
+  weigh.c = pw.ambient ? 1.0f : static_cast<float>(d.kappa);
+  weigh.gain = static_cast<float>(d.gain);
+  weigh.inv_mean = static_cast<float>(1.0 / (mean_ambient + floor));
+  weigh.floor = static_cast<float>(floor);
+  weigh.lo = static_cast<float>(1.0 / kAlphaMax);
+  weigh.hi = static_cast<float>(kAlphaMax);
+  weigh.ambient = pw.ambient;
+  weigh.normalised = win->normalised;
   int samples_in = 0;
   for (int dy = -H; dy <= H; ++dy)
   {
     const int row = pw.index(-H, dy);
-    float* v = win->vals + row;
-    const float p0 = static_cast<float>(plane.a + plane.by * dy - plane.bx * H), pbx = static_cast<float>(plane.bx);
-    for (int k = 0; k <= 2 * H; ++k)
-    {
-      const int i = row + k;
-      if (!(pw.flags[i] & PlaneWindow::kSample))
-      {
-        v[k] = 0.0f;
-        continue;
-      }
-      ++samples_in;
-      const float added = (pw.signal[i] - c * other[i] - (p0 + pbx * k)) * gain;
-      float alpha = 1.0f;
-      if (win->normalised)
-      {
-        const float ambient = pw.ambient ? pw.ambient_signal[i] : pw.signal[i] - added;
-        alpha = std::min(hi, std::max(lo, (ambient + fl) * inv_mean));
-      }
-      v[k] = added / alpha;
-    }
-    for (int k = 2 * H + 1; k < win->stride; ++k)
-      v[k] = 0.0f;
+    samples_in += weigh(pw, row, static_cast<float>(plane.a + plane.by * dy - plane.bx * H),
+                        static_cast<float>(plane.bx), win->vals + row);
   }
   win->density = samples_in / detail::square(2.0 * H + 1.0);
   markUsable(pw, win);
