@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <opencv2/core/hal/intrin.hpp>
+
 #include "spot_detector_pixels.h"
 #include "spot_detector_planes.h"
 
@@ -74,8 +76,45 @@ void FramePlanes::fillPixel(const cv::Mat& m, int x, int y, float* s, float* r, 
 
 namespace
 {
+#if CV_SIMD128
+// Sixteen pixels' bytes as four lanes of floats each, into d[0..15].
+inline void storeAsFloats(const cv::v_uint8x16& v, float* d)
+{
+  cv::v_uint16x8 lo, hi;
+  cv::v_expand(v, lo, hi);
+  cv::v_uint32x4 a, b;
+  cv::v_expand(lo, a, b);
+  cv::v_store(d, cv::v_cvt_f32(cv::v_reinterpret_as_s32(a)));
+  cv::v_store(d + 4, cv::v_cvt_f32(cv::v_reinterpret_as_s32(b)));
+  cv::v_expand(hi, a, b);
+  cv::v_store(d + 8, cv::v_cvt_f32(cv::v_reinterpret_as_s32(a)));
+  cv::v_store(d + 12, cv::v_cvt_f32(cv::v_reinterpret_as_s32(b)));
+}
+
+// Sixteen pixels of a row with `Bytes` (3 or 4) channels from px: the
+// channels so, ro, to into s, r, t, and the flags of the clipped ones
+// (any of the first three channels >= saturation, 1..255).
+template <int Bytes>
+void interleavedChunk(const uint8_t* px, int so, int ro, int to, uint8_t saturation, bool ambient, float* s, float* r,
+                      float* t, uint8_t* flags)
+{
+  cv::v_uint8x16 c[4];
+  if constexpr (Bytes == 3)
+    cv::v_load_deinterleave(px, c[0], c[1], c[2]);
+  else
+    cv::v_load_deinterleave(px, c[0], c[1], c[2], c[3]);
+  storeAsFloats(c[so], s);
+  storeAsFloats(c[ro], r);
+  storeAsFloats(c[to], t);
+  const cv::v_uint8x16 clipped =
+      (cv::v_max(c[0], cv::v_max(c[1], c[2])) >= cv::v_setall_u8(saturation)) & cv::v_setall_u8(PlaneWindow::kClipped);
+  const cv::v_uint8x16 f = ambient ? cv::v_load(flags) | clipped : clipped | cv::v_setall_u8(PlaneWindow::kSample);
+  cv::v_store(flags, f);
+}
+#endif
+
 // The fast path of fillWindow for interleaved 8-bit colour frames (the
-// common case): the planes straight from the rows.
+// common case): the planes straight from the rows, sixteen pixels at a time.
 void fillInterleaved(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
                      PlaneWindow* w, float* s, float* r, float* t, bool ambient)
 {
@@ -83,11 +122,33 @@ void fillInterleaved(const cv::Mat& m, PixelFormat format, const ColourModel& mo
   const int offset[3] = {L.r, L.g, L.b};
   const int so = offset[model.signal], ro = offset[model.reference], to = offset[model.third];
   const int H = w->H;
+  // A saturation level outside 1..255 is the same for every 8-bit pixel: the scalar loop.
+  const bool simd = saturation >= 1 && saturation <= 255;
   for (int dy = -H; dy <= H; ++dy)
   {
     const uint8_t* px = m.ptr<uint8_t>(cy + dy) + (cx - H) * L.bytes;
     const int row = w->index(-H, dy);
-    for (int k = 0; k <= 2 * H; ++k, px += L.bytes)
+    int k = 0;
+#if CV_SIMD128
+    // Chunks of sixteen, the last one ending at the row's end (it may
+    // overlap the one before: the same values again, flags or-ed again).
+    const int n = 2 * H + 1;
+    for (int c = 0; simd && n >= 16; c += 16)
+    {
+      const int at = std::min(c, n - 16), i = row + at;
+      const uint8_t* p = px + at * L.bytes;
+      if (L.bytes == 3)
+        interleavedChunk<3>(p, so, ro, to, static_cast<uint8_t>(saturation), ambient, s + i, r + i, t + i,
+                            w->flags + i);
+      else
+        interleavedChunk<4>(p, so, ro, to, static_cast<uint8_t>(saturation), ambient, s + i, r + i, t + i,
+                            w->flags + i);
+      k = n;
+      if (at == n - 16)
+        break;
+    }
+#endif
+    for (; k <= 2 * H; ++k, px += L.bytes)
     {
       s[row + k] = px[so];
       r[row + k] = px[ro];
