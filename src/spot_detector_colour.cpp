@@ -39,16 +39,20 @@ struct RingColour
 template <typename F>
 void forBorderSamples(const PlaneWindow& w, F f)
 {
-  const int H = w.H;
+  const int H = w.H, inner = H - w.ring;
   for (int dy = -H; dy <= H; ++dy)
+  {
+    // Row by row as the whole window would be read, the interior skipped.
+    const bool interior_row = std::abs(dy) <= inner;
     for (int dx = -H; dx <= H; ++dx)
     {
-      if (std::abs(dx) <= H - w.ring && std::abs(dy) <= H - w.ring)
-        continue;
+      if (interior_row && dx == -inner)
+        dx = inner + 1;  // <= H: the ring is at least one pixel wide
       const int i = w.index(dx, dy);
       if (w.flags[i] & PlaneWindow::kSample)
         f(dx, dy, i);
     }
+  }
 }
 
 RingColour ringColour(const PlaneWindow& w)

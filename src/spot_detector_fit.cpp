@@ -6,6 +6,7 @@
 // pulled wherever the plateau is wider, the flanks are not.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -61,7 +62,18 @@ void usableSamples(const WeightWindow& w, double x, double y, double radius, Sam
   {
     const int r = dy + w.H;
     int first = s->stride, last = -1;
-    for (int dx = -w.H; dx <= w.H; ++dx)
+    // The disk's columns on this row, one more each side for the rounding
+    // of the root (the exact test below decides).
+    const double h2 = r2 - detail::square(w.cy + dy - y);
+    if (h2 < 0.0)
+    {
+      s->c0[r] = s->c1[r] = 0;
+      continue;
+    }
+    const double h = std::sqrt(h2), ox = x - w.cx;
+    const int from = std::max(-w.H, static_cast<int>(std::floor(ox - h)) - 1);
+    const int to = std::min(w.H, static_cast<int>(std::ceil(ox + h)) + 1);
+    for (int dx = from; dx <= to; ++dx)
     {
       const int i = r * w.stride + dx + w.H;
       if (!w.usable[i] || detail::square(w.cx + dx - x) + detail::square(w.cy + dy - y) > r2)
@@ -221,6 +233,46 @@ double bestAmplitude(const Samples& s, Model* m)
   return gg > 0 ? s.vv - vg * vg / gg : detail::kInf;
 }
 
+// Solves A x = b for a symmetric positive definite 4 x 4 A by Cholesky
+// (false, as cv::solve's DECOMP_CHOLESKY, when a pivot is below DBL_EPSILON):
+// cv::solve's general entry costs twenty times the arithmetic here.
+bool solve4(const cv::Matx44d& A, const cv::Vec4d& b, cv::Vec4d* x)
+{
+  double L[4][4] = {};
+  for (int j = 0; j < 4; ++j)
+  {
+    double d = A(j, j);
+    for (int k = 0; k < j; ++k)
+      d -= L[j][k] * L[j][k];
+    if (!(d >= std::numeric_limits<double>::epsilon()))
+      return false;
+    L[j][j] = std::sqrt(d);
+    for (int i = j + 1; i < 4; ++i)
+    {
+      double v = A(i, j);
+      for (int k = 0; k < j; ++k)
+        v -= L[i][k] * L[j][k];
+      L[i][j] = v / L[j][j];
+    }
+  }
+  double y[4];
+  for (int i = 0; i < 4; ++i)
+  {
+    double v = b[i];
+    for (int k = 0; k < i; ++k)
+      v -= L[i][k] * y[k];
+    y[i] = v / L[i][i];
+  }
+  for (int i = 3; i >= 0; --i)
+  {
+    double v = y[i];
+    for (int k = i + 1; k < 4; ++k)
+      v -= L[k][i] * (*x)[k];
+    (*x)[i] = v / L[i][i];
+  }
+  return true;
+}
+
 // Levenberg-Marquardt on (a, x, y, s) from m (whose amplitude is set).
 double levenbergMarquardt(const Samples& samples, Model* model)
 {
@@ -235,7 +287,7 @@ double levenbergMarquardt(const Samples& samples, Model* model)
     for (int k = 0; k < 4; ++k)
       A(k, k) *= 1.0 + lambda;
     cv::Vec4d step;
-    if (!cv::solve(A, Jtr, step, cv::DECOMP_CHOLESKY))
+    if (!solve4(A, Jtr, &step))
       break;
     const Model trial{m.a + step[0], m.x + step[1], m.y + step[2], m.s + step[3]};
     cv::Matx44d JtJ2;
