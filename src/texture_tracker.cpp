@@ -167,6 +167,12 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
   Sum* c = sums->data();
   const size_t first = static_cast<size_t>(roi.x) * CN;
   const float scale = (1.0f / 256.0f) * (sizeof(T) == 2 ? static_cast<float>(TextureTracker::k16BitTo8Bit) : 1.0f);
+  // One row of the channel's vertical sums by column parity (exact: below
+  // 2^31 for 16-bit pixels); kept per thread.
+  thread_local std::vector<int32_t> split;
+  split.resize(static_cast<size_t>(2 * w));
+  int32_t* even = split.data();
+  int32_t* odd = even + w;
   auto at = [&](int x) { return std::min(std::max(reflect101(x, W), 0), W - 1) * CN + channel; };
   for (int y = 0; y < h; ++y)
   {
@@ -177,19 +183,22 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
     const T* r4 = image.ptr<T>(roi.y + reflect101(2 * y + 2, H)) + first;
     for (int x = 0; x < n; ++x)
       c[x] = static_cast<Sum>(Sum(r0[x]) + r4[x] + 4 * (Sum(r1[x]) + r3[x]) + 6 * Sum(r2[x]));
+    // The channel's sums split into even and odd columns, contiguous, so
+    // that the horizontal taps of the interior outputs (2x - 2 >= 0,
+    // 2x + 2 < W) vectorise: e[x-1] + e[x+1] + 4 (o[x-1] + o[x]) + 6 e[x].
+    for (int i = 0; i < w; ++i)
+      even[i] = c[2 * i * CN + channel];
+    for (int i = 0; i < W / 2; ++i)
+      odd[i] = c[(2 * i + 1) * CN + channel];
     float* o = dst->ptr<float>(y);
-    for (int x = 0; x < w; ++x)
+    const int last_inner = (W - 3) / 2;
+    for (int x = 1; x <= last_inner; ++x)
+      o[x] = static_cast<float>(even[x - 1] + even[x + 1] + 4 * (odd[x - 1] + odd[x]) + 6 * even[x]) * scale;
+    for (int x = 0; x < w; x = x == 0 ? std::max(1, last_inner + 1) : x + 1)
     {
       const int xc = 2 * x;
-      uint32_t sum;
-      if (xc >= 2 && xc + 2 < W)
-      {
-        const Sum* p = c + xc * CN + channel;
-        sum = uint32_t(p[-2 * CN]) + p[2 * CN] + 4 * (uint32_t(p[-CN]) + p[CN]) + 6 * uint32_t(p[0]);
-      }
-      else
-        sum = uint32_t(c[at(xc - 2)]) + c[at(xc + 2)] + 4 * (uint32_t(c[at(xc - 1)]) + c[at(xc + 1)]) +
-              6 * uint32_t(c[at(xc)]);
+      const uint32_t sum = uint32_t(c[at(xc - 2)]) + c[at(xc + 2)] + 4 * (uint32_t(c[at(xc - 1)]) + c[at(xc + 1)]) +
+                           6 * uint32_t(c[at(xc)]);
       o[x] = static_cast<float>(sum) * scale;
     }
   }
