@@ -66,10 +66,7 @@ void usableSamples(const WeightWindow& w, double x, double y, double radius, Sam
     // of the root (the exact test below decides).
     const double h2 = r2 - detail::square(w.cy + dy - y);
     if (h2 < 0.0)
-    {
-      s->c0[r] = s->c1[r] = 0;
-      continue;
-    }
+      continue;  // c0 = c1 = 0 from the assign above
     const double h = std::sqrt(h2), ox = x - w.cx;
     const int from = std::max(-w.H, static_cast<int>(std::floor(ox - h)) - 1);
     const int to = std::min(w.H, static_cast<int>(std::ceil(ox + h)) + 1);

@@ -180,9 +180,7 @@ class ReplayRoundTrip(unittest.TestCase):
         stop(outputs)
         path = os.path.join(self.dir, name)
         if not os.path.exists(path):
-            self.log.flush()
-            kept = os.path.join(artifact_dir(), "replay_processes.log")
-            shutil.copy(self.log.name, kept)
+            kept = self.keep_log()
             with open(self.log.name) as f:
                 tail = f.read()[-3000:]
             self.fail("the %s replay produced no output (launch exit %s, recorder exit %s, files %s; whole log in %s); "
@@ -194,11 +192,16 @@ class ReplayRoundTrip(unittest.TestCase):
         try:
             self.round_trip()
         except Exception:
-            # A failed run keeps the processes' output (PoseDelta names why a
-            # frame is not valid) beside the results.
-            self.log.flush()
-            shutil.copy(self.log.name, os.path.join(artifact_dir(), "replay_processes.log"))
+            self.keep_log()
             raise
+
+    def keep_log(self):
+        """Copies the processes' output (PoseDelta names why a frame is not
+        valid) beside the results; returns where."""
+        self.log.flush()
+        kept = os.path.join(artifact_dir(), "replay_processes.log")
+        shutil.copy(self.log.name, kept)
+        return kept
 
     def round_trip(self):
         live_stats = os.path.join(self.dir, "live_stats.yaml")
@@ -232,8 +235,6 @@ class ReplayRoundTrip(unittest.TestCase):
         self.assertGreaterEqual(n_input, 3 * RECORD_S, "too few frames recorded")
         # Every recorded frame goes through the replay (nothing dropped at half speed).
         missing = [i for i, s in enumerate(complete) if s not in r1[0]]
-        if missing:
-            shutil.copy(self.log.name, os.path.join(artifact_dir(), "replay_processes.log"))
         self.assertEqual(missing, [], "frames (by index among %d) without a cloud in the first replay; process log: "
                          "replay_processes.log beside the results" % n_input)
         self.assertEqual(sorted(r1[0]), complete)
