@@ -7,7 +7,9 @@
 // Scene parameters are read once at start-up (README, "Parameters of the
 // simulator"); lighting, noise and jitter are live (cfg/CameraDriver.cfg).
 // Simulated time advances by 1 / ~rate per frame, deterministically, also
-// across rate changes and while ~lazy skips the rendering.
+// across rate changes and while ~lazy skips the rendering; the stamps are
+// spaced like it (stampAt).
+#include <cmath>
 #include <functional>
 #include <mutex>
 #include <utility>
@@ -216,9 +218,9 @@ public:
     if (!build(c, ratio_source))
       return false;
     sim_info_ = cameraInfoFromModel(simulator_->camera(), std_msgs::Header());
-    pub_gt_points_ = ctx_.nh.advertise<sensor_msgs::PointCloud2>("sim/ground_truth/points", 2);
-    pub_gt_pose_ = ctx_.nh.advertise<PoseDelta>("sim/ground_truth/pose_delta", 2);
-    pub_gt_spots_ = ctx_.nh.advertise<CentroidArray>("sim/ground_truth/spots", 2);
+    pub_gt_points_ = ctx_.nh.advertise<sensor_msgs::PointCloud2>("sim/ground_truth/points", 5);
+    pub_gt_pose_ = ctx_.nh.advertise<PoseDelta>("sim/ground_truth/pose_delta", 5);
+    pub_gt_spots_ = ctx_.nh.advertise<CentroidArray>("sim/ground_truth/spots", 5);
     lazy_ = ctx_.pnh.param("lazy", true);
     if (lazy_)
       ctx_.info(
@@ -251,8 +253,10 @@ public:
     const double t = t_base_ + (index_ - index_base_) / rate;
     if (duration_s_ > 0.0 && t >= duration_s_)
       return {GrabStatus::kEnd, stringf("~duration %.1f s of simulated time reached; no more frames", duration_s_)};
-    if (!ctx_.stamp(&frame->stamp))
+    ros::Time now;
+    if (!ctx_.stamp(&now))
       return {GrabStatus::kSkip, ""};
+    frame->stamp = stampAt(t, now);
     ++index_;
     // The arm moves whether or not this frame is rendered.
     FrameRequest request;
@@ -284,6 +288,32 @@ private:
   bool build(const SimulatorParams& c, const std::string& ratio_source);
   void writeProjectorCalibration() const;
 
+  // The stamp of simulated instant t: ROS time at the first frame plus the
+  // simulated time since, so that the stamps are spaced exactly like the
+  // scene's motion. Stamping each frame with the time it was grabbed bent
+  // them wherever the worker woke late (20-58 ms apart at 30 Hz on a loaded
+  // machine, for a scene moved by 33 ms each): the ambient compensation and
+  // PoseDelta read motion per second from the stamps. Re-anchored, with a
+  // warning, when ROS time and the stamps part by more than kMaxSlipS (a
+  // machine too slow for ~rate, a jump in ROS time).
+  ros::Time stampAt(double t, const ros::Time& now)
+  {
+    constexpr double kMaxSlipS = 0.25;
+    const double slip = now.toSec() - (anchor_s_ + t);
+    if (!anchored_ || std::abs(slip) > kMaxSlipS)
+    {
+      if (anchored_)
+        ROS_WARN_THROTTLE(10.0,
+                          "CameraDriver (sim): the stamps of simulated time were %.0f ms %s ROS time; re-anchored "
+                          "(one gap in the stamps; the machine may be too slow for ~rate)",
+                          1e3 * std::abs(slip), slip > 0.0 ? "behind" : "ahead of");
+      anchor_s_ = now.toSec() - t;
+      anchored_ = true;
+      return now;
+    }
+    return ros::Time(anchor_s_ + t);
+  }
+
   std::shared_ptr<const Simulator> simulator() const
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -310,6 +340,8 @@ private:
   // Worker thread: simulated time, the last frame and the simulator that rendered it.
   uint64_t index_ = 0, index_base_ = 0;
   double t_base_ = 0.0, rate_base_ = 0.0;
+  bool anchored_ = false;  // stampAt(): ROS time (s) of simulated time 0
+  double anchor_s_ = 0.0;
   SimFrame rendered_;
   std::shared_ptr<const Simulator> rendered_by_;
   SimClosedLoop closed_loop_;  // the arm driven by stabilizer/cmd_twist, the truth offsets
