@@ -195,6 +195,12 @@ private:
                    projector_cols_);
       projector_rows_ = projector_cols_ = 10;
     }
+    pnh.param("queue_size", queue_size_, 2);
+    if (queue_size_ < 1)
+    {
+      NODELET_WARN("SpotDetector: ~queue_size must be >= 1 (got %d); using 1", queue_size_);
+      queue_size_ = 1;
+    }
     pnh.param("strobe", strobe_, false);
     pnh.param("ambient_max_gap_s", ambient_max_gap_s_, 0.25);
     if (!(ambient_max_gap_s_ > 0.0))
@@ -230,11 +236,16 @@ private:
   void subscribe() override
   {
     const image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
-    sub_image_ = it_->subscribe("camera/image_raw", 1, &SpotDetectorNodelet::imageCb, this, hints);
+    sub_image_ = it_->subscribe("camera/image_raw", queue_size_, &SpotDetectorNodelet::imageCb, this, hints);
     if (strobe_)
     {
-      sub_ambient_.subscribe(*it_, "camera/image_ambient", 4, hints);
-      ambient_cache_.reset(new message_filters::Cache<sensor_msgs::Image>(sub_ambient_, 4));
+      // Ten projector-off frames (0.67 s of a 30 Hz strobe, 60 MB at bgr16):
+      // a bag recorded on a loaded machine replays a projector-on frame up
+      // to 0.46 s after the projector-off frames of its time (measured), and
+      // four let them go before it came.
+      constexpr int kAmbientFrames = 10;
+      sub_ambient_.subscribe(*it_, "camera/image_ambient", kAmbientFrames, hints);
+      ambient_cache_.reset(new message_filters::Cache<sensor_msgs::Image>(sub_ambient_, kAmbientFrames));
       ambient_cache_->registerCallback(&SpotDetectorNodelet::ambientCb, this);
     }
   }
@@ -294,18 +305,21 @@ private:
     }
     // Strobe mode: a frame whose following projector-off frame has not come
     // yet waits for it (interpolation beats extrapolation from the two
-    // before); one waiting already is not held past this frame.
+    // before), at most until kMaxPending newer frames have come: a bag
+    // recorded on a loaded machine can replay a projector-off frame after
+    // the next projector-on one. A projector-off frame after this one is
+    // after those waiting too: then they all go, in order.
+    constexpr size_t kMaxPending = 2;
     const bool after = ambientAfter(msg->header.stamp);  // takes connect_mutex_: not under pending_mutex_
     std::vector<sensor_msgs::ImageConstPtr> ready;
     {
       std::lock_guard<std::mutex> lock(pending_mutex_);
-      for (const Pending& p : pending_)
-        ready.push_back(p.msg);
-      pending_.clear();
-      if (after)
-        ready.push_back(msg);
-      else
-        pending_.push_back({msg, ros::WallTime::now()});
+      pending_.push_back({msg, ros::WallTime::now()});
+      while (!pending_.empty() && (after || pending_.size() > kMaxPending))
+      {
+        ready.push_back(pending_.front().msg);
+        pending_.pop_front();
+      }
     }
     for (const sensor_msgs::ImageConstPtr& m : ready)
       processGuarded(m);
@@ -580,6 +594,7 @@ private:
 
   // Parameters fixed at start-up.
   int projector_rows_ = 10, projector_cols_ = 10;
+  int queue_size_ = 2;  // camera/image_raw frames queued while the detector is busy (~queue_size)
   bool strobe_ = false;
   double ambient_max_gap_s_ = 0.25;
   bool ambient_wait_ = true;  // strobe mode: a frame waits for the projector-off frame after it
