@@ -159,8 +159,11 @@ void CameraDriverNodelet::onInit()
   }
   ros::NodeHandle& nh = getNodeHandle();
   it_.reset(new image_transport::ImageTransport(nh));
-  pub_camera_ = it_->advertiseCamera("camera/image_raw", 2);
-  pub_ambient_ = it_->advertise("camera/image_ambient", 2);
+  // Five frames queued per subscriber before the oldest is dropped: a
+  // recorder in another process on a loaded machine fell behind by more
+  // than two (strobe_replay.test recorded 32 of ~43 projector-on frames).
+  pub_camera_ = it_->advertiseCamera("camera/image_raw", 5);
+  pub_ambient_ = it_->advertise("camera/image_ambient", 5);
   camera_info_manager_.reset(new camera_info_manager::CameraInfoManager(ros::NodeHandle(nh, "camera"), camera_name_));
   if (!camera_info_url_.empty())
     loadCameraInfoUrl();
