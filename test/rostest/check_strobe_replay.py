@@ -9,13 +9,13 @@ strobe:=true (strobe_replay.test, #20 acceptance):
    the outputs recorded.
 Asserts against the bag's truth the issue's bounds: recall >= 99 % pooled
 (dots within 3 px of their true pixel / visible dots, over the frames that
-have a projector-off frame on each side: see bracketed), centroid RMS <= 0.10
+have their own projector-off frame on each side: see bracketed), centroid RMS <= 0.10
 px, 0 wrong beams (a beam's point more than 2 cm from that beam's true hit
 point), pose <= 1.0 mm / 0.05 deg RMS with >= 90 % valid (reference: the
 first valid frame, as the replay locks it); and depth RMS <= 0.1 % of z,
-every frame's recall >= 95 %. Measured: recall 100 % (worst frame 100 %),
-0.070 px, depth 0.032 %, pose 0.12 mm / 0.004 deg (docs/daylight.md; the same
-bag at 8 bits 0.096-0.106 px)."""
+every frame's recall >= 95 %. Measured (eight runs): recall 100 % (worst
+frame 100 %), 0.0655-0.0667 px, depth 0.030-0.033 %, pose 0.145-0.169 mm /
+0.005-0.006 deg (docs/daylight.md)."""
 import math
 import os
 import shutil
@@ -47,17 +47,28 @@ def read_spots(path, topic):
 
 
 def bracketed(truth, path):
-    """The true frames whose projector-on frame has a projector-off frame
-    before and after it in the bag. `rosbag record --duration` cuts the
-    sequence anywhere: an on-frame at either end may lack one of its two
-    neighbours, and is then compensated from one side only (extrapolated,
-    recall 59 % measured on such a frame under CPU load, where the cut fell
-    there). Those frames are left out of the spot scores, and counted."""
+    """The true frames whose projector-on frame is in the bag with its own
+    projector-off frames, one before and one after it, each within 0.6 of the
+    median spacing of the projector-on frames (half of it apart in a strobe).
+    `rosbag record --duration` cuts the sequence anywhere, and a recorder
+    starved of CPU loses frames (the publisher queues five per subscriber):
+    such an on-frame is compensated from one side only, or across a gap
+    (recall 59 % measured on one, extrapolated, under CPU load). Those frames
+    are left out of the spot scores, and counted."""
     with rosbag.Bag(path) as bag:
         off = sorted(m.header.stamp.to_nsec() for _, m, _ in bag.read_messages(topics=["/camera/image_ambient"]))
-    if not off:
+        images = set(m.header.stamp.to_nsec() for _, m, _ in bag.read_messages(topics=["/camera/image_raw"]))
+    on = sorted(stamp for stamp in truth if stamp in images)
+    if not off or len(on) < 2:
         return {}
-    return {stamp: gt for stamp, gt in truth.items() if off[0] < stamp < off[-1]}
+    reach = 0.6 * float(np.median(np.diff(on)))
+    off = np.array(off)
+    kept = {}
+    for stamp in on:
+        i = int(np.searchsorted(off, stamp))
+        if 0 < i < len(off) and stamp - off[i - 1] <= reach and off[i] - stamp <= reach:
+            kept[stamp] = truth[stamp]
+    return kept
 
 
 def count_messages(path, topic):
@@ -66,26 +77,29 @@ def count_messages(path, topic):
 
 
 def score_spots(found, truth):
-    """Pooled recall, worst frame's recall and centroid RMS: each true dot
-    matched to the nearest spot within 3 px, closest pairs first."""
-    matched, total, sq, worst = 0, 0, 0.0, 1.0
+    """Pooled recall, worst frame's recall, centroid RMS and the per-frame
+    (stamp, recall, RMS) sorted worst RMS first: each true dot matched to the
+    nearest spot within 3 px, closest pairs first."""
+    matched, total, sq, frames = 0, 0, 0.0, []
     for stamp, gt in truth.items():
         spots = found.get(stamp, [])
         pairs = sorted((math.hypot(s[0] - g[0], s[1] - g[1]), i, j) for i, s in enumerate(spots)
                        for j, g in enumerate(gt))
-        used_s, used_g, m = set(), set(), 0
+        used_s, used_g, frame_sq = set(), set(), 0.0
         for d, i, j in pairs:
             if d > 3.0 or i in used_s or j in used_g:
                 continue
             used_s.add(i)
             used_g.add(j)
-            sq += d * d
-            m += 1
-        matched += m
+            frame_sq += d * d
+        matched += len(used_g)
         total += len(gt)
+        sq += frame_sq
         if gt:
-            worst = min(worst, m / len(gt))
-    return matched / max(total, 1), worst, math.sqrt(sq / max(matched, 1))
+            frames.append((stamp, len(used_g) / len(gt), math.sqrt(frame_sq / max(len(used_g), 1))))
+    frames.sort(key=lambda f: -f[2])
+    worst = min((f[1] for f in frames), default=1.0)
+    return matched / max(total, 1), worst, math.sqrt(sq / max(matched, 1)), frames
 
 
 class StrobeReplay(unittest.TestCase):
@@ -126,7 +140,7 @@ class StrobeReplay(unittest.TestCase):
         n_on, n_off = count_messages(bag_in, "/camera/image_raw"), count_messages(bag_in, "/camera/image_ambient")
         print("[ MEASURE ] recorded %d projector-on and %d ambient frames" % (n_on, n_off))
         self.assertGreaterEqual(n_on, 15)
-        self.assertLessEqual(abs(n_on - n_off), 1)
+        self.assertGreaterEqual(n_off, 15)
 
         time.sleep(2.0)
         if rospy.has_param("/use_sim_time"):
@@ -144,10 +158,13 @@ class StrobeReplay(unittest.TestCase):
 
         truth_spots = read_spots(bag_in, "/sim/ground_truth/spots")
         scored = bracketed(truth_spots, bag_in)
-        print("[ MEASURE ] spots scored on %d of %d projector-on frames (the others lack a projector-off frame on "
-              "one side, at the ends of the recording)" % (len(scored), len(truth_spots)))
-        self.assertGreaterEqual(len(scored), len(truth_spots) - 2)
-        recall, worst, rms = score_spots(read_spots(bag_out, "/spots"), scored)
+        print("[ MEASURE ] spots scored on %d of %d projector-on frames (the others lack their projector-off frame "
+              "on one side in the bag: the ends of the recording, frames the recorder lost)" %
+              (len(scored), len(truth_spots)))
+        self.assertGreaterEqual(len(scored), 15)
+        recall, worst, rms, frames = score_spots(read_spots(bag_out, "/spots"), scored)
+        print("[ MEASURE ] worst frames (stamp, recall, RMS px): %s" %
+              ", ".join("%d %.2f %.3f" % f for f in frames[:3]))
         gt_points, _ = read_truth(bag_in)
         wrong, compared = 0, 0
         with rosbag.Bag(bag_out) as bag:
