@@ -9,6 +9,8 @@
 // nothing here may take the manager down.
 #include <algorithm>
 #include <atomic>
+#include <cmath>
+#include <cstdint>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -96,12 +98,18 @@ private:
   bool sleepFor(double seconds) { return sleepUntil(ros::WallTime::now() + ros::WallDuration(seconds)); }
 
   // Paces the loop: next tick one period later, no burst after a stall.
-  static void advance(ros::WallTime* next, double rate)
+  // The next tick of the schedule; returns the ticks given up when the
+  // worker is more than a period behind (the schedule keeps its phase).
+  static int64_t advance(ros::WallTime* next, double rate)
   {
-    *next += ros::WallDuration(1.0 / rate);
-    const ros::WallTime now = ros::WallTime::now();
-    if (*next < now - ros::WallDuration(1.0 / rate))
-      *next = now;
+    const double period = 1.0 / rate;
+    *next += ros::WallDuration(period);
+    const double behind = (ros::WallTime::now() - *next).toSec() - period;
+    if (behind <= 0.0)
+      return 0;
+    const int64_t ticks = static_cast<int64_t>(std::floor(behind / period)) + 1;
+    *next += ros::WallDuration(ticks * period);
+    return ticks;
   }
 
   // Parameters.
@@ -294,7 +302,8 @@ void CameraDriverNodelet::run()
     {
       if (!sleepUntil(next))
         return;
-      advance(&next, rate);
+      if (const int64_t ticks = advance(&next, rate))
+        source_->skipped(ticks);
     }
     const GrabResult r = tick(rate);
     switch (r.status)

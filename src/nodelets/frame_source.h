@@ -106,6 +106,10 @@ public:
 
   // True when the driver paces grab() at ~rate; a device paces itself.
   virtual bool paced() const { return true; }
+  // Paced sources: the driver's schedule let `ticks` frame periods pass
+  // without a grab (the worker fell more than a period behind). A source
+  // whose frames follow time (the simulator) moves on by as many frames.
+  virtual void skipped(int64_t /*ticks*/) {}
   // True for a rendered source: diagnostics show the render time and the
   // publish rate reached, and warn when rendering cannot keep up.
   virtual bool rendered() const { return false; }

@@ -276,6 +276,24 @@ public:
     return {GrabStatus::kFrame, ""};
   }
 
+  // The driver's schedule gave up `ticks` frames (the worker fell more than a
+  // period behind): the scene moves on by as many frames, as the world does
+  // while a camera's host cannot keep up, so that the stamps stay on the
+  // schedule's clock. Before, each such frame left simulated time behind for
+  // good and the stamps drifted up to kMaxSlipS into the past (58 ms median at
+  // 30 Hz in one benchmark run), past the StabilizationController's 0.2 s
+  // ~timeout at times. Strobed, the frames keep their slots: a lost slot
+  // leaves two frames of one kind in a row, as with a triggered camera.
+  void skipped(int64_t ticks) override
+  {
+    index_ += static_cast<uint64_t>(ticks);
+    frames_lost_ += ticks;
+    ROS_INFO_THROTTLE(30.0,
+                      "CameraDriver (sim): %lld frame periods lost so far to a worker that fell behind ~rate (the "
+                      "scene moves on, as with a camera whose host cannot keep up)",
+                      static_cast<long long>(frames_lost_));
+  }
+
   void published(const std_msgs::Header& header) override;
   void reconfigure(CameraDriverConfig& config) override;
 
@@ -296,9 +314,9 @@ private:
   // PoseDelta read motion per second from the stamps. Re-anchored, with a
   // warning, when ROS time and the stamps part by more than kMaxSlipS (a
   // machine too slow for ~rate, a jump in ROS time).
+  static constexpr double kMaxSlipS = 0.25;
   ros::Time stampAt(double t, const ros::Time& now)
   {
-    constexpr double kMaxSlipS = 0.25;
     const double slip = now.toSec() - (anchor_s_ + t);
     if (!anchored_ || std::abs(slip) > kMaxSlipS)
     {
@@ -340,7 +358,8 @@ private:
   // Worker thread: simulated time, the last frame and the simulator that rendered it.
   uint64_t index_ = 0, index_base_ = 0;
   double t_base_ = 0.0, rate_base_ = 0.0;
-  bool anchored_ = false;  // stampAt(): ROS time (s) of simulated time 0
+  bool anchored_ = false;    // stampAt(): ROS time (s) of simulated time 0
+  int64_t frames_lost_ = 0;  // skipped()
   double anchor_s_ = 0.0;
   SimFrame rendered_;
   std::shared_ptr<const Simulator> rendered_by_;
