@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""Checks that the manager loaded all seven nodelets (the four of the pipeline,
-the StabilizationController, the StrobeDemux and the ProjectorCalibrator) without an error, that its
+"""Checks that the manager loaded all eight nodelets (the four of the pipeline,
+the StabilizationController, the StrobeDemux, the ProjectorCalibrator and the
+benchmark's LatencyProbe) without an error, that its
 services answer, that each standalone node is up, and that rosmsg knows the
 package's three messages with exactly the fields of docs/interface.md."""
 import subprocess
@@ -16,7 +17,7 @@ from rosgraph_msgs.msg import Log
 
 PKG = "structured_light_stabilizer"
 NODELETS = ["/camera_driver", "/spot_detector", "/triangulator", "/pose_delta", "/stabilization_controller",
-            "/strobe_demux", "/projector_calibrator"]
+            "/strobe_demux", "/projector_calibrator", "/latency_probe"]
 STANDALONE = ["/standalone/" + n.strip("/") for n in NODELETS]
 
 EXPECTED_FIELDS = {
@@ -40,7 +41,7 @@ class NodeletsLoad(unittest.TestCase):
         if msg.level >= Log.ERROR:
             cls.errors.append("%s: %s" % (msg.name, msg.msg))
 
-    def test_manager_loads_all_seven(self):
+    def test_manager_loads_all_eight(self):
         rospy.wait_for_service("/manager/list", timeout=30.0)
         listing = rospy.ServiceProxy("/manager/list", NodeletList)
         deadline = time.time() + 30.0
