@@ -61,6 +61,16 @@ def sim_table(out):
             print("|  | demo monitor: %s published, %s dropped, recall %s, pose %s mm / %s deg RMS |%s" % (
                 mon.get("frames_published"), mon.get("frames_dropped"), fmt(mon.get("recall"), "%.4f"),
                 fmt(mon.get("translation_rms_mm"), "%.3f"), fmt(mon.get("rotation_rms_deg"), "%.4f"), " |" * 11))
+    print("\nStages inside the manager (LatencyProbe: camera_info -> spots -> points -> pose_delta; median, p99 "
+          "and the mean over the slowest 2 %% of frames, ms):\n")
+    print("| rate | SpotDetector | Triangulator | PoseDelta |")
+    print("|---|---|---|---|")
+    for rate in (30, 60):
+        inside = load(os.path.join(out, "sim_%d_latency.yaml" % rate)) or {}
+        print("| %d Hz | %s |" % (rate, " | ".join(
+            "%s / %s / %s" % (fmt(inside.get(st + "_median_ms")), fmt(inside.get(st + "_p99_ms")),
+                              fmt(inside.get(st + "_in_slowest_ms")))
+            for st in ("detector", "triangulator", "pose_delta"))))
     print("\nThe latency from the arrival of camera/camera_info to that of pose_delta: first as "
           "nodes/benchmark_probe.py sees it from its own process, then as the LatencyProbe nodelet times it inside "
           "the pipeline's manager (steady clock, a thread of its own). The manager's CPU includes the simulator's "
