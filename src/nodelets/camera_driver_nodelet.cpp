@@ -97,9 +97,9 @@ private:
 
   bool sleepFor(double seconds) { return sleepUntil(ros::WallTime::now() + ros::WallDuration(seconds)); }
 
-  // Paces the loop: next tick one period later, no burst after a stall.
-  // The next tick of the schedule; returns the ticks given up when the
-  // worker is more than a period behind (the schedule keeps its phase).
+  // Paces the loop: the next tick one period later. A worker more than a
+  // period behind gives up the ticks it missed (returned; the schedule keeps
+  // its phase) and catches up by one tick at most, no burst after a stall.
   static int64_t advance(ros::WallTime* next, double rate)
   {
     const double period = 1.0 / rate;
