@@ -173,7 +173,7 @@ struct RefineSettings
 {
   int fixed_radius = 0;  // window half size; 0 = 3 sigma
   double max_sigma = 6.0;
-  bool subtract_texture = true;  // colour frames: signal - kappa reference
+  bool subtract_texture = true;  // colour frames: signal - (a reference + b third), the rock's mix
   bool normalise_albedo = true;
   double albedo_floor_dn = 1.0;
 };

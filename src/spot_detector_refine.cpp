@@ -10,9 +10,9 @@
 // the brighter grains by sigma^2 times the albedo's log-gradient (0.4 px RMS
 // for 1-3 cm texture of +-25 % at 1.5 m). The albedo is seen in the ambient
 // light: A(p) = albedo(p) * E_sun, smooth E_sun. With an ambient frame A is
-// measured; on a colour frame it is the reference channel scaled by the
-// rock's signal/reference ratio, after the dot's own small share of the
-// reference is taken out. Dividing the added light by A / mean(A) leaves the
+// measured; on a colour frame it is what the rock's other two channels
+// predict of the signal (rockMix), after the dot's own small share of those
+// channels is taken out. Dividing the added light by A / mean(A) leaves the
 // beam's footprint, whose centre is the hit point.
 #include <algorithm>
 #include <cmath>
@@ -35,6 +35,10 @@ constexpr int kMaxStride = PlaneWindow::kStride;
 // Largest ratio of the albedo under a pixel to its surroundings (a printed
 // chessboard: 16).
 constexpr double kAlphaMax = 20.0;
+// F statistic the third channel's term must reach on a window's border for
+// the rock's signal to be fitted to both other channels (rockMix): about the
+// 5 % point of F(1, n - 2) for a border of 40-200 samples.
+constexpr double kMinHueF = 4.0;
 
 // Calls f(dx, dy) for every pixel of the border ring of the (2H+1)^2
 // window, `thickness` pixels wide: top and bottom rows, then the left and
@@ -127,12 +131,31 @@ Plane robustPlane(const RingSample* samples, int n, double* spread)
 // ---------------------------------------------------------------------------
 // The weight field.
 
-// The rock's signal/reference ratio on the window's border (least squares
-// through the origin over the signal's samples); 0 when the reference is
-// below ~3 DN: no sunlit texture to follow (night).
-double rockRatio(const PlaneWindow& w)
+// The rock's signal as a multiple of its other channels on the window's
+// border: signal ~ a reference + b third (least squares through the origin
+// over the signal's samples). A rock's reflectance spectrum is smooth, so the
+// albedo at the signal's wavelength follows its neighbours' on both sides
+// (green between red and blue); one channel alone leaves the texture's hue
+// (red against blue) in the estimate. The border still gets some of the
+// dot's light, which shows in the other channels too (led_reference,
+// led_third); the fit is therefore made on the dot-free combinations
+// r' = reference - led_reference signal and t' = third - led_third signal
+// (signal ~ alpha r' + beta t', mapped back to a and b), or the dot's flank
+// would be read as the rock's colour. b = 0 (the reference alone) where the
+// third channel is dark, where its term explains no more of the border than
+// its noise would (an F test: on grey texture or a uniform border the fit
+// would only add the third channel's noise), or where the pair does not fit
+// with non-negative weights. a = 0 when the reference is below ~3 DN: no
+// sunlit texture to follow (night).
+struct RockMix
 {
-  double sr = 0, rr = 0;
+  double a = 0, b = 0;
+};
+
+RockMix rockMix(const PlaneWindow& w, const ColourModel& model)
+{
+  const double lr = model.led_reference, lt = model.led_third;
+  double ss = 0, sr = 0, rr = 0, st = 0, tt = 0, rt = 0;
   int n = 0;
   forRing(w.H, w.ring,
           [&](int dx, int dy)
@@ -140,20 +163,46 @@ double rockRatio(const PlaneWindow& w)
             const int i = w.index(dx, dy);
             if ((w.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) != PlaneWindow::kSample)
               return;
-            sr += double(w.signal[i]) * w.reference[i];
-            rr += double(w.reference[i]) * w.reference[i];
+            const double s = w.signal[i], r = w.reference[i] - lr * s, t = w.third[i] - lt * s;
+            ss += s * s;
+            sr += s * r;
+            rr += r * r;
+            st += s * t;
+            tt += t * t;
+            rt += r * t;
             ++n;
           });
+  RockMix m;
   if (n == 0 || rr < 9.0 * n)
-    return 0.0;
-  return std::min(4.0, std::max(0.0, sr / rr));
+    return m;
+  // signal = alpha r' + beta t' for the rock is signal = a reference + b third
+  // with (a, b) = (alpha, beta) / (1 + alpha led_reference + beta led_third).
+  const double alpha = std::max(0.0, sr / rr);
+  m.a = std::min(4.0, alpha / (1.0 + alpha * lr));
+  const double det = rr * tt - rt * rt;
+  if (n < 12 || tt < 9.0 * n || det <= 1e-12 * rr * tt)
+    return m;
+  const double al2 = (sr * tt - st * rt) / det, be2 = (st * rr - sr * rt) / det;
+  if (al2 < 0.0 || be2 < 0.0 || al2 + be2 > 4.0)
+    return m;
+  // The third channel only where it explains what the reference leaves: the
+  // drop in the residual sum of squares is kMinHueF times the residual
+  // variance (an F test; on a grey or smooth border it is about 1).
+  const double rss1 = std::max(0.0, ss - sr * sr / rr), rss2 = std::max(1e-12, ss - al2 * sr - be2 * st);
+  if (rss1 - rss2 < kMinHueF * rss2 / (n - 2))
+    return m;
+  const double d = 1.0 + al2 * lr + be2 * lt;
+  m.a = al2 / d;
+  m.b = be2 / d;
+  return m;
 }
 
 // What the window shows of the rock and the dot, per pixel.
 struct Decomposition
 {
-  double kappa = 0;  // signal/reference of the rock (colour frames without ambient)
-  double gain = 1;   // 1 / (1 - kappa led_reference): the dot's share of the reference put back
+  RockMix mix;  // the rock's signal from its reference and third channels (colour frames without ambient)
+  const float* rock = nullptr;  // a reference + b third per pixel, where mix.a > 0
+  double gain = 1;              // 1 / (1 - a led_reference - b led_third): the dot's share of those channels put back
   bool ambient_known = false;
 };
 
@@ -163,7 +212,7 @@ inline double baseValue(const PlaneWindow& w, int i, const Decomposition& d)
   if (w.ambient)
     return double(w.signal[i]) - w.ambient_signal[i];
   // Without a colour model the reference plane is not filled (0 x garbage can be NaN).
-  return d.kappa > 0.0 ? double(w.signal[i]) - d.kappa * w.reference[i] : double(w.signal[i]);
+  return d.rock ? double(w.signal[i]) - d.rock[i] : double(w.signal[i]);
 }
 
 // The ambient light in the signal channel at pixel i, given the added light P.
@@ -285,7 +334,7 @@ int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, f
 
 // The weight field of a filled PlaneWindow: P = (base - plane) * gain, the
 // dot's added light (base = signal - the ambient frame's signal, or signal -
-// kappa reference); divided by alpha = (A + floor) / (mean A + floor), the
+// a reference - b third, rockMix); divided by alpha = (A + floor) / (mean A + floor), the
 // albedo relative to the border's, where the ambient A (the ambient frame's
 // signal, or signal - P) is known and bright enough (mean A >= 2 floor: by
 // night there is nothing to normalise by). One pass over the window.
@@ -297,12 +346,21 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
   win->H = H;
   win->stride = pw.stride;
   Decomposition d;
+  alignas(16) float rock[PlaneWindow::kSize];
   if (pw.colour && !pw.ambient && rs.subtract_texture)
   {
-    d.kappa = rockRatio(pw);
-    d.gain = 1.0 / std::max(0.5, 1.0 - d.kappa * model.led_reference);
+    d.mix = rockMix(pw, model);
+    if (d.mix.a > 0.0)
+    {
+      const float a = static_cast<float>(d.mix.a), b = static_cast<float>(d.mix.b);
+      const int len = (2 * H + 1) * pw.stride;
+      for (int i = 0; i < len; ++i)
+        rock[i] = a * pw.reference[i] + b * pw.third[i];
+      d.rock = rock;
+    }
+    d.gain = 1.0 / std::max(0.5, 1.0 - d.mix.a * model.led_reference - d.mix.b * model.led_third);
   }
-  d.ambient_known = pw.ambient || (pw.colour && d.kappa > 0.0);
+  d.ambient_known = pw.ambient || d.rock != nullptr;
   RingSample samples[kMaxRing];
   int n = 0;
   double signal_sum = 0;
@@ -327,10 +385,10 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
   const double mean_ambient = n ? ambient_sum / n : 0.0, floor = std::max(rs.albedo_floor_dn, win->noise);
   win->normalised = rs.normalise_albedo && d.ambient_known && mean_ambient >= 2.0 * floor;
   // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
-  // (A mono window fills no reference plane: with kappa = 0 it subtracts 0 x signal, never 0 x garbage.)
+  // (A mono window fills no reference plane: without a rock model it subtracts 0 x signal, never 0 x garbage.)
   WeightRow weigh;
-  weigh.other = pw.ambient ? pw.ambient_signal : (d.kappa > 0.0 ? pw.reference : pw.signal);
-  weigh.c = pw.ambient ? 1.0f : static_cast<float>(d.kappa);
+  weigh.other = pw.ambient ? pw.ambient_signal : (d.rock ? d.rock : pw.signal);
+  weigh.c = pw.ambient || d.rock ? 1.0f : 0.0f;
   weigh.gain = static_cast<float>(d.gain);
   weigh.inv_mean = static_cast<float>(1.0 / (mean_ambient + floor));
   weigh.floor = static_cast<float>(floor);

@@ -90,3 +90,29 @@ TEST(DaylightRig, CentroidFloorIsTheReliefUnderTheFootprint)
   EXPECT_GE(relief.spots.rms(), 0.03);
   EXPECT_LE(relief.spots.rms(), 0.06);
 }
+
+TEST(DaylightRig, OneColourFrameByDayTakesTheAlbedoFromBothOtherChannels)
+{
+  // No strobe: the albedo under each dot from the colour frame's red and
+  // blue (docs/spot_detector.md, "Hue"). The simulator's historical bgr8
+  // camera, a dot/sun ratio of 8 (the lowest at which one frame found every
+  // dot, docs/daylight.md), 2 cm grain of its own hue, 0.15 m relief, 1.0-2.0
+  // m; seeds 11 and 12 (the rock model's F threshold was chosen on
+  // test_spot_detector_sim's fine-texture scenes). Measured 0.069 px pooled,
+  // worst frame 0.080 px; 0.101 px and 0.116 px with red alone.
+  Options o;
+  o.output = "bgr8";
+  o.strobe = false;
+  o.ratio = 8.0;
+  o.frames = 15;
+  Stats all;
+  for (double distance : {1.0, 1.5, 2.0})
+    for (uint32_t seed : {11u, 12u})
+      all.add(runCase(o, distance, seed));
+  std::cout << "[ MEASURE ] one colour frame by day, 1.0-2.0 m: " << all.line() << "\n";
+  EXPECT_GE(all.spots.recall(), 0.995);
+  EXPECT_GE(all.worst_frame_recall, 0.98);
+  EXPECT_EQ(all.wrong_beams, 0);
+  EXPECT_LE(all.spots.rms(), 0.08);
+  EXPECT_LE(all.worst_frame_rms, 0.095);
+}
