@@ -212,9 +212,10 @@ struct FastParams
 
   // Refinement.
   int window_radius_px = 0;  // half size of the refinement window; 0 = from the blob's size
-  // Centroid weight signal - kappa reference, kappa = the rock's signal/
-  // reference ratio around the dot: removes the sunlit rock texture under
-  // the dot (false: signal alone). Colour frames without an ambient frame.
+  // Centroid weight signal - (a reference + b third), the rock's colour
+  // fitted around the dot (b = 0 unless the border shows a hue that the
+  // reference alone misses): removes the sunlit rock texture under the dot
+  // (false: signal alone). Colour frames without an ambient frame.
   bool subtract_rock_texture = true;
   // Divide the dot's added light by the albedo under each pixel (relative to
   // its surroundings), known from the ambient frame or, on colour frames,
