@@ -145,14 +145,16 @@ Plane robustPlane(const RingSample* samples, int n, double* spread)
 // third channel is dark, where its term explains no more of the border than
 // its noise would (an F test: on grey texture or a uniform border the fit
 // would only add the third channel's noise), or where the pair does not fit
-// with non-negative weights. a = 0 when the reference is below ~3 DN: no
-// sunlit texture to follow (night).
+// with non-negative weights, and on yuv422 frames (third_channel false:
+// their chroma is shared by pixel pairs, so a pixel's colour there is half
+// its neighbour's, dot light included). a = 0 when the reference is below
+// ~3 DN: no sunlit texture to follow (night).
 struct RockMix
 {
   double a = 0, b = 0;
 };
 
-RockMix rockMix(const PlaneWindow& w, const ColourModel& model)
+RockMix rockMix(const PlaneWindow& w, const ColourModel& model, bool third_channel)
 {
   const double lr = model.led_reference, lt = model.led_third;
   double ss = 0, sr = 0, rr = 0, st = 0, tt = 0, rt = 0;
@@ -180,7 +182,7 @@ RockMix rockMix(const PlaneWindow& w, const ColourModel& model)
   const double alpha = std::max(0.0, sr / rr);
   m.a = std::min(4.0, alpha / (1.0 + alpha * lr));
   const double det = rr * tt - rt * rt;
-  if (n < 12 || tt < 9.0 * n || det <= 1e-12 * rr * tt)
+  if (!third_channel || n < 12 || tt < 9.0 * n || det <= 1e-12 * rr * tt)
     return m;
   const double al2 = (sr * tt - st * rt) / det, be2 = (st * rr - sr * rt) / det;
   if (al2 < 0.0 || be2 < 0.0 || al2 + be2 > 4.0)
@@ -338,7 +340,8 @@ int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, f
 // albedo relative to the border's, where the ambient A (the ambient frame's
 // signal, or signal - P) is known and bright enough (mean A >= 2 floor: by
 // night there is nothing to normalise by). One pass over the window.
-void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineSettings& rs, WeightWindow* win)
+void buildWeights(const PlaneWindow& pw, const ColourModel& model, bool third_channel, const RefineSettings& rs,
+                  WeightWindow* win)
 {
   const int H = pw.H;
   win->cx = pw.cx;
@@ -349,7 +352,7 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, const RefineS
   alignas(16) float rock[PlaneWindow::kSize];
   if (pw.colour && !pw.ambient && rs.subtract_texture)
   {
-    d.mix = rockMix(pw, model);
+    d.mix = rockMix(pw, model, third_channel);
     if (d.mix.a > 0.0)
     {
       const float a = static_cast<float>(d.mix.a), b = static_cast<float>(d.mix.b);
@@ -545,7 +548,8 @@ void loadWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int
   if (cx == win.cx && cy == win.cy && H == win.H)
     return;
   planes.fillWindow(cx, cy, H, &scratch->planes);
-  buildWeights(scratch->planes, planes.model(), rs, &win);
+  const bool shared_chroma = planes.format() == PixelFormat::kUyvy || planes.format() == PixelFormat::kYuyv;
+  buildWeights(scratch->planes, planes.model(), !shared_chroma, rs, &win);
 }
 
 // For the iterated centroid: a window that covers half size H around pixel
