@@ -28,6 +28,7 @@
 
 #include "structured_light_stabilizer/ambient_compensation.h"
 #include "structured_light_stabilizer/sim/radiometry.h"
+#include "support/benchmark_frames.h"
 #include "structured_light_stabilizer/sim/simulator.h"
 #include "structured_light_stabilizer/spot_detector.h"
 #include "structured_light_stabilizer/spot_search_planner.h"
@@ -279,21 +280,8 @@ bool pinToOneCore()
 std::vector<cv::Mat> benchmarkFrames(int count)
 {
   std::vector<cv::Mat> images;
-  const double beams[] = {0.0014, 0.002, 0.0028, 0.0038};
-  const double suns[] = {1.0, 0.5};
   for (int i = 0; i < count; ++i)
-  {
-    SimulatorParams cfg = studySimulatorParams();  // comparable with the figures measured before
-    cfg.projector.beam_sigma_rad = beams[i % 4];
-    cfg.lighting.sun_level = suns[(i / 4) % 2];
-    cfg.lighting.dot_to_sun_ratio *= std::pow(cfg.projector.beam_sigma_rad / 0.002, 2.0);
-    cfg.clutter.green_specks = 20;
-    cfg.clutter.olive_minerals = 20;
-    cfg.clutter.green_blobs = 5;
-    cfg.rock.seed = 1000 + i;
-    cfg.motion.jitter_translation_m = 0.002;
-    images.push_back(Simulator(cfg).render(0.1 * i).image);
-  }
+    images.push_back(Simulator(test::benchmarkFrameParams(i)).render(0.1 * i).image);
   return images;
 }
 

@@ -27,7 +27,7 @@
 
 #include "structured_light_stabilizer/spot_detector.h"
 #ifndef SLS_TIME_ONLY
-#include "structured_light_stabilizer/sim/simulator.h"
+#include "support/benchmark_frames.h"
 #endif
 
 using namespace structured_light_stabilizer;
@@ -44,26 +44,15 @@ double threadCpuMs()
 }
 
 #ifndef SLS_TIME_ONLY
-// benchmark_spot_detector's whole-frame frames (dot sigma 1.5-4 px, sun 0.5
-// and 1, clutter), the dots `brightness` times as bright.
+// benchmark_spot_detector's whole-frame frames, the dots at full brightness
+// and 0.3 x as bright.
 int writeFrames(const std::string& dir)
 {
-  const double beams[] = {0.0014, 0.002, 0.0028, 0.0038};
-  const double suns[] = {1.0, 0.5};
   for (double brightness : {1.0, 0.3})
     for (int i = 0; i < kFrames; ++i)
     {
-      SimulatorParams cfg = studySimulatorParams();
-      cfg.projector.beam_sigma_rad = beams[i % 4];
-      cfg.lighting.sun_level = suns[(i / 4) % 2];
-      cfg.lighting.dot_to_sun_ratio *= std::pow(cfg.projector.beam_sigma_rad / 0.002, 2.0) * brightness;
-      cfg.clutter.green_specks = 20;
-      cfg.clutter.olive_minerals = 20;
-      cfg.clutter.green_blobs = 5;
-      cfg.rock.seed = 1000 + i;
-      cfg.motion.jitter_translation_m = 0.002;
       const std::string name = dir + (brightness < 1.0 ? "/dim_" : "/full_") + std::to_string(i) + ".png";
-      if (!cv::imwrite(name, Simulator(cfg).render(0.1 * i).image))
+      if (!cv::imwrite(name, Simulator(test::benchmarkFrameParams(i, brightness)).render(0.1 * i).image))
       {
         std::fprintf(stderr, "cannot write %s\n", name.c_str());
         return 1;
