@@ -57,27 +57,40 @@ void forBorderSamples(const PlaneWindow& w, F f)
 
 RingColour ringColour(const PlaneWindow& w)
 {
-  cv::Matx33d A = cv::Matx33d::zeros();
-  cv::Vec3d b[3];
+  // Normal equations of (1, dx, dy): their upper triangle, and one right-hand side per channel.
+  double A[6] = {0, 0, 0, 0, 0, 0}, b[3][3] = {{0, 0, 0}, {0, 0, 0}, {0, 0, 0}};
   double sr = 0, tr = 0, rr = 0;
   int n = 0;
   forBorderSamples(w,
                    [&](int dx, int dy, int i)
                    {
-                     const cv::Vec3d u(1.0, dx, dy);
-                     A += u * u.t();
+                     A[1] += dx;
+                     A[2] += dy;
+                     A[3] += double(dx) * dx;
+                     A[4] += double(dx) * dy;
+                     A[5] += double(dy) * dy;
                      const double c[3] = {w.signal[i], w.reference[i], w.third[i]};
                      for (int k = 0; k < 3; ++k)
-                       b[k] += u * c[k];
+                     {
+                       b[k][0] += c[k];
+                       b[k][1] += dx * c[k];
+                       b[k][2] += dy * c[k];
+                     }
                      sr += c[kSig] * c[kRef];
                      tr += c[kThird] * c[kRef];
                      rr += c[kRef] * c[kRef];
                      ++n;
                    });
+  A[0] = n;
   RingColour ring;
   for (int k = 0; k < 3; ++k)
-    if (!cv::solve(A, b[k], ring.plane[k], cv::DECOMP_CHOLESKY))
+  {
+    double x[3];
+    if (solveSymmetric3(A, b[k], 1e-9, x))
+      ring.plane[k] = cv::Vec3d(x[0], x[1], x[2]);
+    else
       ring.plane[k] = cv::Vec3d(n ? b[k][0] / n : 0.0, 0, 0);
+  }
   // Ratios only where the reference is above ~3 DN (sunlit rock).
   if (n > 0 && rr >= 9.0 * n)
   {
@@ -98,6 +111,45 @@ struct Excess
   double ref = 0, sig = 0, free_sig = 0, free_third = 0, sum_w = 0;
 };
 
+// The window's weighted sums, about whose samples the excess is linear: the
+// weights (and their moments in dx, dy, for the planes) and the weighted
+// signal, reference and third (minus the ambient frame's, with kAmbient).
+struct WeightedSums
+{
+  double w = 0, wx = 0, wy = 0, sig = 0, ref = 0, third = 0;
+};
+
+template <bool kAmbient>
+WeightedSums weightedSums(const PlaneWindow& w, const double* gx, const double* gy)
+{
+  const int H = w.H, n = 2 * H + 1;
+  WeightedSums t;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const int row = w.index(-H, dy);
+    double rw = 0, rwx = 0, rs = 0, rr = 0, rt = 0;
+    for (int k = 0; k < n; ++k)
+    {
+      const int i = row + k;
+      const double g =
+          (w.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) == PlaneWindow::kSample ? gx[k] : 0.0;
+      rw += g;
+      rwx += g * (k - H);
+      rs += g * (kAmbient ? w.signal[i] - w.ambient_signal[i] : w.signal[i]);
+      rr += g * (kAmbient ? w.reference[i] - w.ambient_reference[i] : w.reference[i]);
+      rt += g * (kAmbient ? w.third[i] - w.ambient_third[i] : w.third[i]);
+    }
+    const double g = gy[dy + H];
+    t.w += g * rw;
+    t.wx += g * rwx;
+    t.wy += g * rw * dy;
+    t.sig += g * rs;
+    t.ref += g * rr;
+    t.third += g * rt;
+  }
+  return t;
+}
+
 Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour& ring)
 {
   const double inv2s2 = 1.0 / (2.0 * fit.sigma * fit.sigma);
@@ -108,34 +160,26 @@ Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour
     gy[d + w.H] = std::exp(-detail::square(w.cy + d - fit.y) * inv2s2);
   }
   Excess e;
-  for (int dy = -w.H; dy <= w.H; ++dy)
-    for (int dx = -w.H; dx <= w.H; ++dx)
-    {
-      const int i = w.index(dx, dy);
-      if ((w.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) != PlaneWindow::kSample)
-        continue;
-      const double weight = gx[dx + w.H] * gy[dy + w.H];
-      double s, r, t;
-      if (w.ambient)
-      {
-        s = w.signal[i] - w.ambient_signal[i];
-        r = w.reference[i] - w.ambient_reference[i];
-        t = w.third[i] - w.ambient_third[i];
-        e.free_sig += weight * s;
-        e.free_third += weight * t;
-      }
-      else
-      {
-        s = w.signal[i] - ring.at(kSig, dx, dy);
-        r = w.reference[i] - ring.at(kRef, dx, dy);
-        t = w.third[i] - ring.at(kThird, dx, dy);
-        e.free_sig += weight * (s - ring.k_sig * r);
-        e.free_third += weight * (t - ring.k_third * r);
-      }
-      e.sum_w += weight;
-      e.ref += weight * r;
-      e.sig += weight * s;
-    }
+  if (w.ambient)
+  {
+    const WeightedSums t = weightedSums<true>(w, gx, gy);
+    e.sum_w = t.w;
+    e.sig = e.free_sig = t.sig;
+    e.ref = t.ref;
+    e.free_third = t.third;
+    return e;
+  }
+  // Each channel's excess over its border plane: the weighted sum of the
+  // channel minus the plane's, a Wbx + bx Wx + by Wy.
+  const WeightedSums t = weightedSums<false>(w, gx, gy);
+  const auto planeSum = [&](int c)
+  { return ring.plane[c][0] * t.w + ring.plane[c][1] * t.wx + ring.plane[c][2] * t.wy; };
+  const double s = t.sig - planeSum(kSig), r = t.ref - planeSum(kRef), th = t.third - planeSum(kThird);
+  e.sum_w = t.w;
+  e.sig = s;
+  e.ref = r;
+  e.free_sig = s - ring.k_sig * r;
+  e.free_third = th - ring.k_third * r;
   return e;
 }
 }  // namespace

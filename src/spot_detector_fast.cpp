@@ -206,7 +206,7 @@ std::vector<char> markDuplicates(const std::vector<KeptSpot>& kept)
     {
       const SpotFit& b = kept[order[j]].fit;
       const double lim = std::max(2.0, 1.5 * std::max(a.sigma, b.sigma));
-      if (std::hypot(a.x - b.x, a.y - b.y) < lim)
+      if (detail::square(a.x - b.x) + detail::square(a.y - b.y) < lim * lim)
         drop[order[j]] = 1;
     }
   }

@@ -42,6 +42,15 @@ struct Samples
   const double* uvRow(int r) const { return uv.data() + r * stride; }
 };
 
+// This thread's Samples, whose buffers are kept across fits. Out of line: a
+// thread_local used directly in the loops below is looked up again at every
+// access in a shared library (__tls_get_addr per pixel).
+__attribute__((noinline)) Samples& threadSamples()
+{
+  thread_local Samples samples;
+  return samples;
+}
+
 // Those within `radius` of (x, y) only: farther out a dot adds nothing but
 // noise (and a neighbour's flank). Into *s, whose buffers are reused.
 void usableSamples(const WeightWindow& w, double x, double y, double radius, Samples* s)
@@ -335,10 +344,17 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
   if (!std::isfinite(best))
     return false;
   // Flood fill within 2 px (a Bayer mosaic's samples of one colour are 2 px apart).
-  uint8_t seen[PlaneWindow::kSize] = {};
-  cv::Point stack[PlaneWindow::kSize];
+  // Only the window's rows are cleared, and the stack is not initialised
+  // (cv::Point's constructor would zero all of it: 20 kB a call).
+  struct Cell
+  {
+    int x, y;
+  };
+  uint8_t seen[PlaneWindow::kSize];
+  std::fill(seen, seen + (2 * H + 1) * pw.stride, uint8_t(0));
+  Cell stack[PlaneWindow::kSize];
   int top = 0;
-  stack[top++] = cv::Point(sx, sy);
+  stack[top++] = Cell{sx, sy};
   seen[pw.index(sx, sy)] = 1;
   double mx = 0, my = 0;
   int n = 0, widest = 0;
@@ -346,7 +362,7 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
   std::fill(row_span, row_span + 2 * H + 1, cv::Vec2i(1 << 20, -(1 << 20)));
   while (top > 0)
   {
-    const cv::Point q = stack[--top];
+    const Cell q = stack[--top];
     mx += q.x;
     my += q.y;
     ++n;
@@ -358,7 +374,7 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
         if (clipped(q.x + ex, q.y + ey) && !seen[pw.index(q.x + ex, q.y + ey)])
         {
           seen[pw.index(q.x + ex, q.y + ey)] = 1;
-          stack[top++] = cv::Point(q.x + ex, q.y + ey);  // each pixel once: fits
+          stack[top++] = Cell{q.x + ex, q.y + ey};  // each pixel once: fits
         }
   }
   *centre = cv::Point2d(pw.cx + mx / n, pw.cy + my / n);
@@ -371,7 +387,7 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
 // iterations.
 bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit)
 {
-  thread_local Samples samples;  // buffers kept across calls
+  Samples& samples = threadSamples();
   usableSamples(w, fit->x, fit->y, 3.0 * fit->sigma + 2.0, &samples);
   if (samples.count < 8)
     return false;

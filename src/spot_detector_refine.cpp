@@ -96,16 +96,14 @@ Plane fitPlane(const RingSample* samples, int n, const double* keep_limit, const
     bx += q.v * q.dx;
     by += q.v * q.dy;
   }
-  // 3 x 3 symmetric system by Cramer's rule (hot path: no cv::solve overhead).
   Plane p = prev;
-  const double c00 = sxx * syy - sxy * sxy, c01 = s1y * sxy - s1x * syy, c02 = s1x * sxy - s1y * sxx;
-  const double det = s11 * c00 + s1x * c01 + s1y * c02;
-  if (s11 >= 6 && std::abs(det) > 1e-9)
+  const double S[6] = {s11, s1x, s1y, sxx, sxy, syy}, B[3] = {b1, bx, by};
+  double x[3];
+  if (s11 >= 6 && solveSymmetric3(S, B, 1e-9, x))
   {
-    const double c11 = s11 * syy - s1y * s1y, c12 = s1x * s1y - s11 * sxy, c22 = s11 * sxx - s1x * s1x;
-    p.a = (c00 * b1 + c01 * bx + c02 * by) / det;
-    p.bx = (c01 * b1 + c11 * bx + c12 * by) / det;
-    p.by = (c02 * b1 + c12 * bx + c22 * by) / det;
+    p.a = x[0];
+    p.bx = x[1];
+    p.by = x[2];
   }
   return p;
 }
