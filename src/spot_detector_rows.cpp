@@ -212,10 +212,10 @@ inline cv::v_uint8x16 average(const cv::v_uint8x16& a, const cv::v_uint8x16& b)
 }
 
 // The cells of a 16-lane comparison mask that hold, as runs.
-inline void markHits(const cv::v_uint8x16& m, int y, int x, std::vector<Run>* runs)
+// The cells of 16 with a hit (few: out of line, so that the common case
+// keeps no buffer on the stack).
+__attribute__((noinline)) void markHitCells(const cv::v_uint8x16& m, int y, int x, std::vector<Run>* runs)
 {
-  if (!cv::v_check_any(m))
-    return;
   alignas(16) uint8_t hit[16];
   cv::v_store(hit, m);
   for (int i = 0; i < 16; ++i)
@@ -223,9 +223,15 @@ inline void markHits(const cv::v_uint8x16& m, int y, int x, std::vector<Run>* ru
       markCell(runs, y, x + i);
 }
 
+inline void markHits(const cv::v_uint8x16& m, int y, int x, std::vector<Run>* runs)
+{
+  if (cv::v_check_any(m))
+    markHitCells(m, y, x, runs);
+}
+
 // Scores s - max(k_ref r, k_third t) (saturating) of 16 cells: runs and acc.
-inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y, int x, std::vector<Run>* runs,
-                 uint16_t* acc)
+__attribute__((always_inline)) inline void emit(const cv::v_uint8x16& s, const cv::v_uint8x16& threshold, int y, int x,
+                                                std::vector<Run>* runs, uint16_t* acc)
 {
   if (acc)
   {
