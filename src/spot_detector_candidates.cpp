@@ -71,11 +71,13 @@ void joinRows(const std::vector<Run>& runs, int prev_begin, int prev_end, int be
   }
 }
 
-void addRun(const Run& run, const FramePlanes& planes, Blob* b)
+// scores: room for the run's cells.
+void addRun(const Run& run, const FramePlanes& planes, int* scores, Blob* b)
 {
+  planes.scoreRun(run.y, run.x0, run.x1, scores);
   for (int x = run.x0; x <= run.x1; ++x)
   {
-    const int s = planes.scoreAt(x, run.y);
+    const int s = scores[x - run.x0];
     ++b->count;
     b->sum += s;
     b->sx += double(s) * x;
@@ -125,7 +127,8 @@ const std::vector<Blob>& BlobLabeller::label(const std::vector<Run>& runs, const
       blobs_.emplace_back();
     }
     run_blob_[i] = root_blob_[r];
-    addRun(runs[i], planes, &blobs_[root_blob_[r]]);
+    scores_.resize(std::max<size_t>(scores_.size(), runs[i].x1 - runs[i].x0 + 1));
+    addRun(runs[i], planes, scores_.data(), &blobs_[root_blob_[r]]);
   }
   return blobs_;
 }

@@ -83,7 +83,7 @@ public:
   const std::vector<int>& runBlob() const { return run_blob_; }
 
 private:
-  std::vector<int> parent_, root_blob_, run_blob_;
+  std::vector<int> parent_, root_blob_, run_blob_, scores_;
   std::vector<Blob> blobs_;
 };
 

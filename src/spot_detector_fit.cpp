@@ -30,15 +30,21 @@ struct Model
 constexpr int kCols = 2 * PlaneWindow::kMaxRadius + 2;  // 2H + 1 rounded up to two lanes
 
 // The window's usable pixels (always the same set, so that sums of squares
-// of different models compare), as rows of the window: u 1 where a pixel is
-// used and 0 elsewhere, uv = u v; each row's used columns lie in [c0, c1).
+// of different models compare), as rows of the window: uv = v where a pixel
+// is used and 0 elsewhere, each row's used columns in [c0, c1), and the row's
+// runs of used columns (the clipped core splits a row in two).
 struct Samples
 {
+  struct Run
+  {
+    int begin, end;  // columns [begin, end)
+  };
   int cx = 0, cy = 0, H = 0, count = 0, rows = 0, stride = 0;
   double vv = 0;  // sum of v^2 over the used pixels
-  std::vector<double> u, uv;
+  std::vector<double> uv;
   std::vector<int> c0, c1;
-  const double* uRow(int r) const { return u.data() + r * stride; }
+  std::vector<Run> runs;       // all rows' runs, row by row
+  std::vector<int> first_run;  // row r's runs are [first_run[r], first_run[r + 1])
   const double* uvRow(int r) const { return uv.data() + r * stride; }
 };
 
@@ -61,41 +67,56 @@ void usableSamples(const WeightWindow& w, double x, double y, double radius, Sam
   s->rows = 2 * w.H + 1;
   s->stride = (s->rows + 1) & ~1;
   s->count = 0;
-  s->vv = 0;
-  s->u.assign(s->rows * s->stride, 0.0);
   s->uv.assign(s->rows * s->stride, 0.0);
   s->c0.assign(s->rows, 0);
   s->c1.assign(s->rows, 0);
+  s->runs.clear();
+  s->first_run.assign(s->rows + 1, 0);
+  double vv = 0;
+  int count = 0;
   const double r2 = radius * radius;
   for (int dy = -w.H; dy <= w.H; ++dy)
   {
     const int r = dy + w.H;
-    int first = s->stride, last = -1;
+    s->first_run[r] = static_cast<int>(s->runs.size());
     // The disk's columns on this row, one more each side for the rounding
     // of the root (the exact test below decides).
-    const double h2 = r2 - detail::square(w.cy + dy - y);
+    const double ey2 = detail::square(w.cy + dy - y), h2 = r2 - ey2;
     if (h2 < 0.0)
       continue;  // c0 = c1 = 0 from the assign above
     const double h = std::sqrt(h2), ox = x - w.cx;
     const int from = std::max(-w.H, static_cast<int>(std::floor(ox - h)) - 1);
     const int to = std::min(w.H, static_cast<int>(std::ceil(ox + h)) + 1);
-    for (int dx = from; dx <= to; ++dx)
+    const uint8_t* usable = w.usable + r * w.stride + w.H;
+    const float* vals = w.vals + r * w.stride + w.H;
+    double* uv = s->uv.data() + r * s->stride + w.H;
+    int first = s->stride, last = -1, run_begin = -1;
+    for (int dx = from; dx <= to + 1; ++dx)
     {
-      const int i = r * w.stride + dx + w.H;
-      if (!w.usable[i] || detail::square(w.cx + dx - x) + detail::square(w.cy + dy - y) > r2)
-        continue;
-      const int c = dx + w.H;
-      s->u[r * s->stride + c] = 1.0;
-      s->uv[r * s->stride + c] = w.vals[i];
-      s->vv += detail::square(double(w.vals[i]));
-      ++s->count;
-      first = std::min(first, c);
-      last = c;
+      const bool used = dx <= to && usable[dx] && detail::square(w.cx + dx - x) + ey2 <= r2;
+      if (used)
+      {
+        uv[dx] = vals[dx];
+        vv += detail::square(double(vals[dx]));
+        ++count;
+        first = std::min(first, dx + w.H);
+        last = dx + w.H;
+        if (run_begin < 0)
+          run_begin = dx + w.H;
+      }
+      else if (run_begin >= 0)
+      {
+        s->runs.push_back({run_begin, dx + w.H});
+        run_begin = -1;
+      }
     }
     // Whole lanes of two: the padding holds zeros.
     s->c0[r] = last < 0 ? 0 : first & ~1;
     s->c1[r] = last < 0 ? 0 : (last + 2) & ~1;
   }
+  s->first_run[s->rows] = static_cast<int>(s->runs.size());
+  s->vv = vv;
+  s->count = count;
 }
 
 // The sums of a model over the used pixels, by the separability of its
@@ -103,7 +124,9 @@ void usableSamples(const WeightWindow& w, double x, double y, double radius, Sam
 // and B_k = sum u v gx ex^k (k = 0..2), then weighted by gy, gy^2 and powers
 // of the row's ey. Each term of J^T J, J^T r and the sum of squares is one
 // of these (see normalEquations): a few multiply-adds per pixel instead of
-// the residual's Jacobian evaluated at each.
+// the residual's Jacobian evaluated at each. The A_k do not depend on the
+// data, only on which pixels are used: a row's are differences of the
+// columns' prefix sums over its runs.
 struct ModelSums
 {
   double P[5] = {0, 0, 0, 0, 0};  // sum gy^2 A_k
@@ -134,79 +157,79 @@ void gaussianRun(double e0, double k, int n, double* g)
 template <bool kShape>
 ModelSums modelSums(const Samples& s, const Model& m)
 {
+  constexpr int kA = kShape ? 5 : 1;
   const double k = -0.5 / (m.s * m.s);
-  alignas(16) double w[5][kCols], q[3][kCols];
+  alignas(16) double q[3][kCols];
+  double cum[kA][kCols + 1];  // cum[p][c] = sum over columns < c of gx^2 ex^p
   double gx[kCols], gy[kCols];
   gaussianRun(s.cx - s.H - m.x, k, s.rows, gx);
   gaussianRun(s.cy - s.H - m.y, k, s.rows, gy);
+  for (int p = 0; p < kA; ++p)
+    cum[p][0] = 0.0;
   for (int c = 0; c < s.stride; ++c)
   {
     const double ex = s.cx + c - s.H - m.x;
     const double g = c < s.rows ? gx[c] : 0.0;
     q[0][c] = g;
-    q[1][c] = g * ex;
-    q[2][c] = g * ex * ex;
-    w[0][c] = g * g;
-    for (int p = 1; p < 5; ++p)
-      w[p][c] = kShape ? w[p - 1][c] * ex : 0.0;
+    q[1][c] = kShape ? g * ex : 0.0;
+    q[2][c] = kShape ? g * ex * ex : 0.0;
+    double w = g * g;
+    for (int p = 0; p < kA; ++p, w *= ex)
+      cum[p][c + 1] = cum[p][c] + w;
   }
   ModelSums t;
   for (int r = 0; r < s.rows; ++r)
   {
     if (s.c1[r] <= s.c0[r])
       continue;
-    const double* u = s.uRow(r);
     const double* uv = s.uvRow(r);
     double A[5] = {0, 0, 0, 0, 0}, B[3] = {0, 0, 0};
+    for (int j = s.first_run[r]; j < s.first_run[r + 1]; ++j)
+    {
+      const Samples::Run& run = s.runs[j];
+      for (int p = 0; p < kA; ++p)
+        A[p] += cum[p][run.end] - cum[p][run.begin];
+    }
 #if CV_SIMD128_64F
-    // Eight named accumulators (an array of them is kept in memory).
-    cv::v_float64x2 a0 = cv::v_setzero_f64(), a1 = a0, a2 = a0, a3 = a0, a4 = a0, b0 = a0, b1 = a0, b2 = a0;
+    cv::v_float64x2 b0 = cv::v_setzero_f64(), b1 = b0, b2 = b0;
     for (int c = s.c0[r]; c < s.c1[r]; c += 2)
     {
-      const cv::v_float64x2 vu = cv::v_load(u + c), vuv = cv::v_load(uv + c);
-      a0 = cv::v_fma(vu, cv::v_load_aligned(w[0] + c), a0);
+      const cv::v_float64x2 vuv = cv::v_load(uv + c);
       b0 = cv::v_fma(vuv, cv::v_load_aligned(q[0] + c), b0);
       if constexpr (kShape)
       {
-        a1 = cv::v_fma(vu, cv::v_load_aligned(w[1] + c), a1);
-        a2 = cv::v_fma(vu, cv::v_load_aligned(w[2] + c), a2);
-        a3 = cv::v_fma(vu, cv::v_load_aligned(w[3] + c), a3);
-        a4 = cv::v_fma(vu, cv::v_load_aligned(w[4] + c), a4);
         b1 = cv::v_fma(vuv, cv::v_load_aligned(q[1] + c), b1);
         b2 = cv::v_fma(vuv, cv::v_load_aligned(q[2] + c), b2);
       }
     }
-    A[0] = cv::v_reduce_sum(a0);
-    A[1] = cv::v_reduce_sum(a1);
-    A[2] = cv::v_reduce_sum(a2);
-    A[3] = cv::v_reduce_sum(a3);
-    A[4] = cv::v_reduce_sum(a4);
     B[0] = cv::v_reduce_sum(b0);
     B[1] = cv::v_reduce_sum(b1);
     B[2] = cv::v_reduce_sum(b2);
 #else
     for (int c = s.c0[r]; c < s.c1[r]; ++c)
-    {
-      for (int p = 0; p < 5; ++p)
-        A[p] += u[c] * w[p][c];
       for (int p = 0; p < 3; ++p)
         B[p] += uv[c] * q[p][c];
-    }
 #endif
     const double ey = s.cy + r - s.H - m.y;
     const double g = gy[r], g2 = g * g, ey2 = ey * ey;
-    for (int p = 0; p < 5; ++p)
-      t.P[p] += g2 * A[p];
-    for (int p = 0; p < 3; ++p)
+    t.P[0] += g2 * A[0];
+    t.R[0] += g * B[0];
+    if constexpr (kShape)
     {
-      t.E[p] += g2 * ey * A[p];
-      t.F[p] += g2 * ey2 * A[p];
-      t.R[p] += g * B[p];
+      for (int p = 1; p < 5; ++p)
+        t.P[p] += g2 * A[p];
+      for (int p = 0; p < 3; ++p)
+      {
+        t.E[p] += g2 * ey * A[p];
+        t.F[p] += g2 * ey2 * A[p];
+      }
+      for (int p = 1; p < 3; ++p)
+        t.R[p] += g * B[p];
+      t.G0 += g2 * ey2 * ey * A[0];
+      t.H0 += g2 * ey2 * ey2 * A[0];
+      t.Q0 += g * ey * B[0];
+      t.Q2 += g * ey2 * B[0];
     }
-    t.G0 += g2 * ey2 * ey * A[0];
-    t.H0 += g2 * ey2 * ey2 * A[0];
-    t.Q0 += g * ey * B[0];
-    t.Q2 += g * ey2 * B[0];
   }
   return t;
 }
@@ -325,22 +348,23 @@ double levenbergMarquardt(const Samples& samples, Model* model)
 bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* centre, double* half_width)
 {
   const int H = pw.H;
-  auto clipped = [&](int dx, int dy)
-  {
-    return std::abs(dx) <= H && std::abs(dy) <= H &&
-           (pw.flags[pw.index(dx, dy)] & (PlaneWindow::kClipped | PlaneWindow::kSample)) ==
-               (PlaneWindow::kClipped | PlaneWindow::kSample);
-  };
+  constexpr uint8_t kClippedSample = PlaneWindow::kClipped | PlaneWindow::kSample;
+  auto clipped = [&](int dx, int dy) { return (pw.flags[pw.index(dx, dy)] & kClippedSample) == kClippedSample; };
   int sx = 0, sy = 0;
   double best = detail::kInf;
   for (int dy = -H; dy <= H; ++dy)
+  {
+    const double ey2 = detail::square(pw.cy + dy - y);
+    if (!(ey2 < best))
+      continue;  // no pixel of this row is nearer
     for (int dx = -H; dx <= H; ++dx)
-      if (clipped(dx, dy) && detail::square(pw.cx + dx - x) + detail::square(pw.cy + dy - y) < best)
+      if (clipped(dx, dy) && detail::square(pw.cx + dx - x) + ey2 < best)
       {
-        best = detail::square(pw.cx + dx - x) + detail::square(pw.cy + dy - y);
+        best = detail::square(pw.cx + dx - x) + ey2;
         sx = dx;
         sy = dy;
       }
+  }
   if (!std::isfinite(best))
     return false;
   // Flood fill within 2 px (a Bayer mosaic's samples of one colour are 2 px apart).
@@ -369,8 +393,9 @@ bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* cent
     cv::Vec2i& span = row_span[q.y + H];
     span = cv::Vec2i(std::min(span[0], q.x), std::max(span[1], q.x));
     widest = std::max(widest, span[1] - span[0] + 1);
-    for (int ey = -2; ey <= 2; ++ey)
-      for (int ex = -2; ex <= 2; ++ex)
+    const int ex0 = std::max(-2, -H - q.x), ex1 = std::min(2, H - q.x);
+    for (int ey = std::max(-2, -H - q.y); ey <= std::min(2, H - q.y); ++ey)
+      for (int ex = ex0; ex <= ex1; ++ex)
         if (clipped(q.x + ex, q.y + ey) && !seen[pw.index(q.x + ex, q.y + ey)])
         {
           seen[pw.index(q.x + ex, q.y + ey)] = 1;

@@ -189,6 +189,26 @@ int FramePlanes::scoreAt(int gx, int gy) const
   return cellScore(gx, gy);
 }
 
+void FramePlanes::scoreRun(int gy, int gx0, int gx1, int* out) const
+{
+  if (!matchedPath() && ambient_.empty() && format_ == PixelFormat::kBgr8 && model_.colour)
+  {
+    const uint8_t* px = image_.ptr<uint8_t>(gy) + 3 * gx0;
+    for (int gx = gx0; gx <= gx1; ++gx, px += 3)
+      *out++ = colourScore(Triple{{px[2], px[1], px[0]}});
+    return;
+  }
+  if (!matchedPath() && ambient_.empty() && format_ == PixelFormat::kMono8)
+  {
+    const uint8_t* px = image_.ptr<uint8_t>(gy);
+    for (int gx = gx0; gx <= gx1; ++gx)
+      *out++ = 16 * px[gx] - levelOf(gx, gy);
+    return;
+  }
+  for (int gx = gx0; gx <= gx1; ++gx)
+    *out++ = cellScore(gx, gy);
+}
+
 // ---------------------------------------------------------------------------
 // Rows of the threshold pass.
 

@@ -152,6 +152,9 @@ public:
   void rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc);
   // Score of one cell; -1 outside the grid.
   int scoreAt(int gx, int gy) const;
+  // Scores of the cells gx0..gx1 of row gy (all in the grid) into out[0..]:
+  // scoreAt's, with the format's dispatch once per run.
+  void scoreRun(int gy, int gx0, int gx1, int* out) const;
 
   // The planes of the (2H+1)^2 window centred on pixel (cx, cy), which must
   // lie inside the frame (H <= PlaneWindow::kMaxRadius).

@@ -539,30 +539,99 @@ double gaussianAmplitude(const SpotFit& fit)
 
 namespace
 {
-// Loads the window centred on pixel (cx, cy) unless it is loaded already.
-void loadWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int cy, int H, RefineScratch* scratch)
+// The planes of the window centred on pixel (cx, cy), unless they are
+// filled already. The weights are built from them when needed (withWeights):
+// a dot found clipped from the planes' flags alone (clippedNearPlanes) is fitted
+// in a wider window, and the weights of the first would be wasted.
+void fillPlanes(const FramePlanes& planes, int cx, int cy, int H, RefineScratch* scratch)
 {
-  WeightWindow& win = scratch->weights;
-  if (cx == win.cx && cy == win.cy && H == win.H)
+  const PlaneWindow& pw = scratch->planes;
+  if (cx == pw.cx && cy == pw.cy && H == pw.H)
     return;
   planes.fillWindow(cx, cy, H, &scratch->planes);
-  const bool shared_chroma = planes.format() == PixelFormat::kUyvy || planes.format() == PixelFormat::kYuyv;
-  buildWeights(scratch->planes, planes.model(), !shared_chroma, rs, &win);
 }
 
-// For the iterated centroid: a window that covers half size H around pixel
-// (cx, cy). The loaded one is kept while it does and is not much larger
-// (the centroid's steps are small after the first); else one is loaded with
-// a margin of 2 px, which spares most reloads.
-void coverWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int cy, int H, RefineScratch* scratch)
+// The weights of the filled planes, unless they are built already.
+void withWeights(const FramePlanes& planes, const RefineSettings& rs, RefineScratch* scratch)
 {
-  const WeightWindow& win = scratch->weights;
-  const int off = std::max(std::abs(cx - win.cx), std::abs(cy - win.cy));
-  if (win.H >= 0 && H + off <= win.H && win.H <= H + 4)
+  const PlaneWindow& pw = scratch->planes;
+  WeightWindow& win = scratch->weights;
+  if (pw.cx == win.cx && pw.cy == win.cy && pw.H == win.H)
+    return;
+  const bool shared_chroma = planes.format() == PixelFormat::kUyvy || planes.format() == PixelFormat::kYuyv;
+  buildWeights(pw, planes.model(), !shared_chroma, rs, &win);
+}
+
+// For the iterated centroid: the planes of a window that covers half size H
+// around pixel (cx, cy). The filled one is kept while it does and is not much
+// larger (the centroid's steps are small after the first); else one is
+// filled with a margin of 2 px, which spares most reloads.
+void coverPlanes(const FramePlanes& planes, int cx, int cy, int H, RefineScratch* scratch)
+{
+  const PlaneWindow& pw = scratch->planes;
+  const int off = std::max(std::abs(cx - pw.cx), std::abs(cy - pw.cy));
+  if (pw.H >= 0 && H + off <= pw.H && pw.H <= H + 4)
     return;
   const int margin =
       std::min({2, kMaxRadius - H, cx - H, cy - H, planes.frameCols() - 1 - cx - H, planes.frameRows() - 1 - cy - H});
-  loadWindow(planes, rs, cx, cy, H + std::max(0, margin), scratch);
+  fillPlanes(planes, cx, cy, H + std::max(0, margin), scratch);
+}
+
+// coverPlanes, and the weights of the window.
+void coverWindow(const FramePlanes& planes, const RefineSettings& rs, int cx, int cy, int H, RefineScratch* scratch)
+{
+  coverPlanes(planes, cx, cy, H, scratch);
+  withWeights(planes, rs, scratch);
+}
+
+// clippedNear from the planes alone: whether a sample within 2.5 sigma of
+// (x, y) is clipped or next to a clipped pixel (what markUsable leaves out).
+bool clippedNearPlanes(const PlaneWindow& pw, double x, double y, double sigma)
+{
+  const int H = pw.H, n = 2 * H + 1;
+  int k = 0, end = n * pw.stride;
+  bool any = false;
+#if CV_SIMD128
+  cv::v_uint8x16 acc = cv::v_setzero_u8();
+  for (; k + 16 <= end; k += 16)
+    acc = acc | cv::v_load(pw.flags + k);
+  any = (cv::v_reduce_max(acc & cv::v_setall_u8(PlaneWindow::kClipped)) != 0);
+#endif
+  for (; k < end; ++k)
+    any = any || (pw.flags[k] & PlaneWindow::kClipped);
+  if (!any)
+    return false;
+  // The disk's bounding box in the window (a pixel within r of (x, y) lies in it).
+  const double r = 2.5 * sigma + 1.0, r2 = r * r;
+  const int dy0 = std::max(-H, static_cast<int>(std::floor(y - r)) - pw.cy);
+  const int dy1 = std::min(H, static_cast<int>(std::ceil(y + r)) - pw.cy);
+  const int dx0 = std::max(-H, static_cast<int>(std::floor(x - r)) - pw.cx);
+  const int dx1 = std::min(H, static_cast<int>(std::ceil(x + r)) - pw.cx);
+  auto clippedAt = [&](int dx, int dy)
+  { return std::abs(dx) <= H && std::abs(dy) <= H && (pw.flags[pw.index(dx, dy)] & PlaneWindow::kClipped); };
+  // Most often the answer is at the centre (a clipped dot's plateau) or
+  // nowhere near it (a neighbour's plateau at the window's edge).
+  const int sx = static_cast<int>(std::lround(x)) - pw.cx, sy = static_cast<int>(std::lround(y)) - pw.cy;
+  if (clippedAt(sx, sy) && (pw.flags[pw.index(sx, sy)] & PlaneWindow::kSample) &&
+      detail::square(pw.cx + sx - x) + detail::square(pw.cy + sy - y) <= r2)
+    return true;
+  bool near = false;
+  for (int dy = std::max(-H, dy0 - 1); dy <= std::min(H, dy1 + 1) && !near; ++dy)
+    for (int dx = std::max(-H, dx0 - 1); dx <= std::min(H, dx1 + 1); ++dx)
+      near = near || (pw.flags[pw.index(dx, dy)] & PlaneWindow::kClipped);
+  if (!near)
+    return false;
+  for (int dy = dy0; dy <= dy1; ++dy)
+    for (int dx = dx0; dx <= dx1; ++dx)
+    {
+      if (!(pw.flags[pw.index(dx, dy)] & PlaneWindow::kSample) ||
+          detail::square(pw.cx + dx - x) + detail::square(pw.cy + dy - y) > r2)
+        continue;
+      if (clippedAt(dx, dy) || clippedAt(dx - 1, dy) || clippedAt(dx + 1, dy) || clippedAt(dx, dy - 1) ||
+          clippedAt(dx, dy + 1))
+        return true;
+    }
+  return false;
 }
 
 // The fields of a fit that come from its window.
@@ -629,6 +698,7 @@ bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, 
   double xc = x0, yc = y0, sw = sigma0;
   WeightWindow& win = scratch->weights;
   win.cx = win.cy = win.H = -1;
+  scratch->planes.cx = scratch->planes.cy = scratch->planes.H = -1;
   double flux = 0, major = 0;
   bool converged = false;
   for (int it = 0; it < 12 && !converged; ++it)
@@ -638,11 +708,12 @@ bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, 
     if (H < 2)
       return false;
     if (fixed_radius > 0)
-      loadWindow(planes, rs, cx, cy, H, scratch);
+      fillPlanes(planes, cx, cy, H, scratch);
     else
-      coverWindow(planes, rs, cx, cy, H, scratch);
-    if (it == 0 && clippedNear(win, x0, y0, sigma0))
+      coverPlanes(planes, cx, cy, H, scratch);
+    if (it == 0 && clippedNearPlanes(scratch->planes, x0, y0, sigma0))
       return refineClipped(planes, rs, x0, y0, sigma0, fixed_radius, scratch, out);
+    withWeights(planes, rs, scratch);
     const Moments m = gaussianMoments(win, xc, yc, sw);
     if (!(m.Sw > 1e-6))
       return false;
