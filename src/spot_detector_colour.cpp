@@ -152,13 +152,10 @@ WeightedSums weightedSums(const PlaneWindow& w, const double* gx, const double* 
 
 Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour& ring)
 {
-  const double inv2s2 = 1.0 / (2.0 * fit.sigma * fit.sigma);
+  const double k = -1.0 / (2.0 * fit.sigma * fit.sigma);
   double gx[2 * PlaneWindow::kMaxRadius + 1], gy[2 * PlaneWindow::kMaxRadius + 1];
-  for (int d = -w.H; d <= w.H; ++d)
-  {
-    gx[d + w.H] = std::exp(-detail::square(w.cx + d - fit.x) * inv2s2);
-    gy[d + w.H] = std::exp(-detail::square(w.cy + d - fit.y) * inv2s2);
-  }
+  gaussianRun(w.cx - w.H - fit.x, k, 2 * w.H + 1, gx);
+  gaussianRun(w.cy - w.H - fit.y, k, 2 * w.H + 1, gy);
   Excess e;
   if (w.ambient)
   {

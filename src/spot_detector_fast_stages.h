@@ -223,6 +223,22 @@ bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit);
 // excess over the rock).
 void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit);
 
+// g[j] = exp(k (e0 + j)^2) for j in [0, n), by the recurrence
+// g(e + 1) = g(e) exp(k (2e + 1)) outwards from the sample nearest the
+// centre (where g is largest, so that an underflow only meets values that
+// are below it anyway): four exp() instead of n, to 1e-13 relative.
+inline void gaussianRun(double e0, double k, int n, double* g)
+{
+  const int c = std::min(n - 1, std::max(0, static_cast<int>(std::lround(-e0))));
+  const double ec = e0 + c, step = std::exp(2.0 * k);
+  g[c] = std::exp(k * ec * ec);
+  double up = std::exp(k * (2.0 * ec + 1.0)), down = std::exp(k * (1.0 - 2.0 * ec));
+  for (int j = c + 1; j < n; ++j, up *= step)
+    g[j] = g[j - 1] * up;
+  for (int j = c - 1; j >= 0; --j, down *= step)
+    g[j] = g[j + 1] * down;
+}
+
 // Solves the symmetric 3 x 3 system with upper triangle s = (s00, s01, s02,
 // s11, s12, s22) for x by Cramer's rule; false (x untouched) when |det| <=
 // min_det. The hot paths' planes: cv::solve's general entry costs twenty

@@ -137,22 +137,6 @@ struct ModelSums
   double Q0 = 0, Q2 = 0;          // sum gy ey B_0, sum gy ey^2 B_0
 };
 
-// g[j] = exp(k (e0 + j)^2) for j in [0, n), by the recurrence
-// g(e + 1) = g(e) exp(k (2e + 1)) outwards from the sample nearest the
-// centre (where g is largest, so that an underflow only meets values that
-// are below it anyway): four exp() instead of n, to 1e-13 relative.
-void gaussianRun(double e0, double k, int n, double* g)
-{
-  const int c = std::min(n - 1, std::max(0, static_cast<int>(std::lround(-e0))));
-  const double ec = e0 + c, step = std::exp(2.0 * k);
-  g[c] = std::exp(k * ec * ec);
-  double up = std::exp(k * (2.0 * ec + 1.0)), down = std::exp(k * (1.0 - 2.0 * ec));
-  for (int j = c + 1; j < n; ++j, up *= step)
-    g[j] = g[j - 1] * up;
-  for (int j = c - 1; j >= 0; --j, down *= step)
-    g[j] = g[j + 1] * down;
-}
-
 // kShape false: only P[0] and R[0] (what the best amplitude needs).
 template <bool kShape>
 ModelSums modelSums(const Samples& s, const Model& m)

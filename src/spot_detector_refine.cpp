@@ -424,15 +424,16 @@ Moments gaussianMoments(const WeightWindow& win, double xc, double yc, double sw
   alignas(16) float wx0[kMaxStride], wx1[kMaxStride], wx2[kMaxStride];
   double gy[2 * kMaxRadius + 1];
   // Separable Gaussian weight; the x factors carry the moments' powers of x.
-  const double inv2s2 = 1.0 / (2.0 * sw * sw);
+  const double k = -1.0 / (2.0 * sw * sw);
+  double gx[2 * kMaxRadius + 1];
+  gaussianRun(cx - H - xc, k, 2 * H + 1, gx);
+  gaussianRun(cy - H - yc, k, 2 * H + 1, gy);
   for (int d = -H; d <= H; ++d)
   {
-    const double ex = cx + d - xc, ey = cy + d - yc;
-    const double g = std::exp(-ex * ex * inv2s2);
+    const double ex = cx + d - xc, g = gx[d + H];
     wx0[d + H] = static_cast<float>(g);
     wx1[d + H] = static_cast<float>(g * ex);
     wx2[d + H] = static_cast<float>(g * ex * ex);
-    gy[d + H] = std::exp(-ey * ey * inv2s2);
   }
   for (int k = 2 * H + 1; k < stride; ++k)
     wx0[k] = wx1[k] = wx2[k] = 0.0f;

@@ -8,6 +8,7 @@
 #include <opencv2/core/hal/intrin.hpp>
 
 #include "spot_detector_pixels.h"
+#include "spot_detector_rows_ssse3.h"
 
 namespace structured_light_stabilizer
 {
@@ -281,16 +282,37 @@ int interleavedSimd(const uint8_t* row, const uint8_t* ambient, int width, int y
 // Interleaved 8-bit colour: kS, kR, kT are the byte offsets of the signal,
 // reference and third channels in a pixel of kC bytes; ambient (may be
 // null) the same row of the ambient frame.
+// The runs of a row's hits, for interleaved3RowSsse3.
+struct RunSink
+{
+  std::vector<Run>* runs;
+  int y;
+  static void add(void* context, int x, unsigned mask)
+  {
+    const RunSink& sink = *static_cast<const RunSink*>(context);
+    for (int i = 0; i < 16; ++i)
+      if (mask & (1u << i))
+        markCell(sink.runs, sink.y, x + i);
+  }
+};
+
 template <int kC, int kS, int kR, int kT, int kModes>
 void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y, const ColourModel& model, int k_ref,
                     int k_third, int threshold, std::vector<Run>* runs, uint16_t* acc)
 {
   int x = 0;
+  if (kC == 3 && haveSsse3Rows())
+  {
+    RunSink sink{runs, y};
+    x = interleaved3RowSsse3(row, ambient, width, kS, kR, kT, refMode(kModes), thirdMode(kModes), k_ref, k_third,
+                             threshold, acc, &RunSink::add, &sink);
+  }
 #if CV_SIMD128
-  x = ambient
-          ? interleavedSimd<kC, kS, kR, kT, kModes, true>(row, ambient, width, y, k_ref, k_third, threshold, runs, acc)
-          : interleavedSimd<kC, kS, kR, kT, kModes, false>(row, ambient, width, y, k_ref, k_third, threshold, runs,
-                                                           acc);
+  if (x == 0)
+    x = ambient ? interleavedSimd<kC, kS, kR, kT, kModes, true>(row, ambient, width, y, k_ref, k_third, threshold, runs,
+                                                                acc)
+                : interleavedSimd<kC, kS, kR, kT, kModes, false>(row, ambient, width, y, k_ref, k_third, threshold,
+                                                                 runs, acc);
 #endif
   for (; x < width; ++x)
   {
@@ -387,6 +409,16 @@ BayerPass bayerPass(int signal, int modes)
                       : bayerPassOf<kPattern, 2>(signal);
 }
 }  // namespace
+
+bool haveSsse3Rows()
+{
+#if defined(SLS_SSSE3_ROWS)
+  static const bool have = __builtin_cpu_supports("ssse3");
+  return have;
+#else
+  return false;
+#endif
+}
 
 bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
                    int k_ref, int k_third, int threshold, int gy, std::vector<Run>* runs, uint16_t* acc)

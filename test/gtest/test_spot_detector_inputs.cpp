@@ -292,6 +292,77 @@ TEST(SpotDetectorInputs, ColourScoreRowsAreExact)
   EXPECT_FALSE(fd::rows::colourScoreRow(bgr, bgr, PixelFormat::kBgr8, model, 128 * 256, 256, 0, out.data()));
 }
 
+// The threshold pass's 8-bit interleaved rows (rows::colourRowRuns: 16
+// pixels at a time, with SSSE3's byte shuffle where the CPU has it, and a
+// scalar tail) against the score written out here: d = max(0, frame -
+// ambient) per channel, s = d_signal - max((k_ref d_reference) >> 8,
+// (k_third d_third) >> 8) saturated at 255, the cells with s >= threshold as
+// runs and max(0, s) added to acc: random frames, bgr8, rgb8, bgra8 and
+// rgba8 with and without an ambient frame, each projector colour's channels,
+// every pass mode (weights below, at and above 256), widths 1-70 (every tail
+// length, several 16-pixel groups).
+TEST(SpotDetectorInputs, ColourRowRunsAreExact)
+{
+  namespace fd = structured_light_stabilizer::fast_detector;
+  cv::RNG rng(6450);
+  const PixelFormat formats[] = {PixelFormat::kBgr8, PixelFormat::kRgb8, PixelFormat::kBgra8, PixelFormat::kRgba8};
+  const int channels[3][3] = {{1, 0, 2}, {0, 1, 2}, {2, 0, 1}};  // green, red, blue projectors
+  int hits = 0;
+  for (PixelFormat format : formats)
+    for (bool with_ambient : {true, false})
+      for (const auto& ch : channels)
+        for (const cv::Vec2i& k : {cv::Vec2i(192, 256), cv::Vec2i(0, 256), cv::Vec2i(192, 200), cv::Vec2i(256, 0),
+                                   cv::Vec2i(300, 256), cv::Vec2i(1000, 40), cv::Vec2i(32767, 300)})
+          for (int width = 1; width <= 70; ++width)
+          {
+            const int type = CV_MAKETYPE(CV_8U, channelCount(format));
+            cv::Mat image(2, width, type), ambient(2, width, type);
+            rng.fill(image, cv::RNG::UNIFORM, 0, 256);
+            rng.fill(ambient, cv::RNG::UNIFORM, 0, 96);
+            fd::ColourModel model;
+            model.signal = ch[0];
+            model.reference = ch[1];
+            model.third = ch[2];
+            const int threshold = 1 + rng.uniform(0, 120);
+            std::vector<fd::Run> runs;
+            std::vector<uint16_t> acc(width), expect_acc(width);
+            for (int x = 0; x < width; ++x)
+              acc[x] = expect_acc[x] = static_cast<uint16_t>(rng.uniform(0, 4096));
+            ASSERT_TRUE(fd::rows::colourRowRuns(image, with_ambient ? ambient : cv::Mat(), format, model, k[0], k[1],
+                                                threshold, 1, &runs, acc.data()));
+            const fd::pixels::Interleaved L = fd::pixels::interleavedLayout(format);
+            const int offset[3] = {L.r, L.g, L.b};
+            std::vector<fd::Run> expect;
+            for (int x = 0; x < width; ++x)
+            {
+              int d[3];
+              for (int c = 0; c < 3; ++c)
+                d[c] = std::max(0, image.ptr<uint8_t>(1)[L.bytes * x + offset[c]] -
+                                       (with_ambient ? ambient.ptr<uint8_t>(1)[L.bytes * x + offset[c]] : 0));
+              const int s =
+                  d[ch[0]] - std::max(std::min(255, (k[0] * d[ch[1]]) >> 8), std::min(255, (k[1] * d[ch[2]]) >> 8));
+              expect_acc[x] = static_cast<uint16_t>(expect_acc[x] + std::max(0, s));
+              if (s >= threshold)
+                fd::rows::markCell(&expect, 1, x);
+            }
+            const auto name = [&]
+            {
+              return std::string(encodingName(format)) + " k " + std::to_string(k[0]) + "/" + std::to_string(k[1]) +
+                     " width " + std::to_string(width);
+            };
+            ASSERT_EQ(acc, expect_acc) << name();
+            ASSERT_EQ(runs.size(), expect.size()) << name();
+            for (size_t i = 0; i < runs.size(); ++i)
+            {
+              ASSERT_EQ(runs[i].y, expect[i].y) << name();
+              ASSERT_EQ(runs[i].x0, expect[i].x0) << name();
+              ASSERT_EQ(runs[i].x1, expect[i].x1) << name();
+              hits += runs[i].x1 - runs[i].x0 + 1;
+            }
+          }
+  EXPECT_GT(hits, 10000);  // the comparison saw hits, not only empty rows
+}
+
 // A mono16 frame is read at its full depth: the same scene as mono8 x 257
 // gives the same spots.
 TEST(SpotDetectorInputs, Mono16IsMono8Scaled)
