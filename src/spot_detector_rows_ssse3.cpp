@@ -35,10 +35,16 @@ struct Deinterleave
         mask[ch][part] = _mm_load_si128(reinterpret_cast<const __m128i*>(m));
       }
   }
-  __m128i channel(int ch, __m128i a, __m128i b, __m128i c) const
+};
+
+// One channel's three masks, held in registers through a row.
+struct Channel
+{
+  __m128i m0, m1, m2;
+  Channel(const Deinterleave& d, int ch) : m0(d.mask[ch][0]), m1(d.mask[ch][1]), m2(d.mask[ch][2]) {}
+  __m128i operator()(__m128i a, __m128i b, __m128i c) const
   {
-    return _mm_or_si128(_mm_or_si128(_mm_shuffle_epi8(a, mask[ch][0]), _mm_shuffle_epi8(b, mask[ch][1])),
-                        _mm_shuffle_epi8(c, mask[ch][2]));
+    return _mm_or_si128(_mm_or_si128(_mm_shuffle_epi8(a, m0), _mm_shuffle_epi8(b, m1)), _mm_shuffle_epi8(c, m2));
   }
 };
 
@@ -73,6 +79,7 @@ int scoreRow(const uint8_t* row, const uint8_t* ambient, int width, int so, int 
              int threshold, uint16_t* acc, HitSink hits, void* context)
 {
   static const Deinterleave kSplit;
+  const Channel signal(kSplit, so), reference(kSplit, ro), third(kSplit, to);
   const Scale scale_ref(k_ref), scale_third(k_third);
   const __m128i thr = _mm_set1_epi8(static_cast<char>(threshold < 255 ? threshold : 255));
   const __m128i zero = _mm_setzero_si128();
@@ -81,14 +88,14 @@ int scoreRow(const uint8_t* row, const uint8_t* ambient, int width, int so, int 
   {
     const __m128i* p = reinterpret_cast<const __m128i*>(row + 3 * x);
     const __m128i a = _mm_loadu_si128(p), b = _mm_loadu_si128(p + 1), c = _mm_loadu_si128(p + 2);
-    __m128i s = kSplit.channel(so, a, b, c), r = kSplit.channel(ro, a, b, c), t = kSplit.channel(to, a, b, c);
+    __m128i s = signal(a, b, c), r = reference(a, b, c), t = third(a, b, c);
     if (kAmbient)
     {
       const __m128i* q = reinterpret_cast<const __m128i*>(ambient + 3 * x);
       const __m128i d = _mm_loadu_si128(q), e = _mm_loadu_si128(q + 1), f = _mm_loadu_si128(q + 2);
-      s = _mm_subs_epu8(s, kSplit.channel(so, d, e, f));
-      r = _mm_subs_epu8(r, kSplit.channel(ro, d, e, f));
-      t = _mm_subs_epu8(t, kSplit.channel(to, d, e, f));
+      s = _mm_subs_epu8(s, signal(d, e, f));
+      r = _mm_subs_epu8(r, reference(d, e, f));
+      t = _mm_subs_epu8(t, third(d, e, f));
     }
     const __m128i score = _mm_subs_epu8(
         s, _mm_max_epu8(scale_ref.template apply<kRefMode>(r), scale_third.template apply<kThirdMode>(t)));
