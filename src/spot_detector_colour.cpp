@@ -167,7 +167,7 @@ Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour
     return e;
   }
   // Each channel's excess over its border plane: the weighted sum of the
-  // channel minus the plane's, a Wbx + bx Wx + by Wy.
+  // channel minus the plane's, a W + bx Wx + by Wy (W, Wx, Wy: the weights' sum and moments).
   const WeightedSums t = weightedSums<false>(w, gx, gy);
   const auto planeSum = [&](int c)
   { return ring.plane[c][0] * t.w + ring.plane[c][1] * t.wx + ring.plane[c][2] * t.wy; };

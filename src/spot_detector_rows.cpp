@@ -212,9 +212,8 @@ inline cv::v_uint8x16 average(const cv::v_uint8x16& a, const cv::v_uint8x16& b)
   return cv::v_pack(cv::v_shr<1>(a0 + b0 + one), cv::v_shr<1>(a1 + b1 + one));
 }
 
-// The cells of a 16-lane comparison mask that hold, as runs.
-// The cells of 16 with a hit (few: out of line, so that the common case
-// keeps no buffer on the stack).
+// The cells of a 16-lane comparison mask that hold, as runs (few: out of
+// line, so that the common case keeps no buffer on the stack).
 __attribute__((noinline)) void markHitCells(const cv::v_uint8x16& m, int y, int x, std::vector<Run>* runs)
 {
   alignas(16) uint8_t hit[16];
