@@ -59,7 +59,10 @@ struct AmbientCompensationParams
   // Motion estimation: a grid of grid x grid points tracked by pyramidal
   // Lucas-Kanade from one frame to the other, a homography fitted to them
   // (RANSAC, threshold in px). Fewer than min_points tracked: blend instead.
-  int grid = 24;
+  // 16 x 16 points for the homography's 8 parameters: against 24 x 24 the
+  // estimate's error to the true ambient moved by at most 0.001 DN
+  // (test_ambient_compensation) for 0.44 x the tracking's cost.
+  int grid = 16;
   int window_px = 21;
   int pyramid_levels = 3;
   double ransac_threshold_px = 0.5;
