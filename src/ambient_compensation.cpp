@@ -169,21 +169,12 @@ bool estimateMotion(const AmbientFrame& a, const AmbientFrame& b, const AmbientC
   return out->points_used >= p.min_points;
 }
 
-// The image warped so that what was at x sits at H x (bilinear; interleaved
-// layouts by warpRegion: affine in tiles where that is within
-// kAffineTolerancePx of H). A Bayer
-// mosaic: each phase on its own sites, M_p = T_p^-1 H T_p with T_p the
-// phase's half-resolution grid.
-void warpRegion(const cv::Mat& src, const cv::Matx33d& M, const cv::Size& size, cv::Mat* dst);
-
-cv::Mat warp(const cv::Mat& img, const cv::Matx33d& H, AmbientLayout layout)
+// A Bayer mosaic warped so that what was at x sits at H x (bilinear): each
+// phase on its own sites, M_p = T_p^-1 H T_p with T_p the phase's
+// half-resolution grid. (Interleaved layouts: warpRegion.)
+cv::Mat warpBayer(const cv::Mat& img, const cv::Matx33d& H)
 {
   cv::Mat out;
-  if (!bayer(layout))
-  {
-    warpRegion(img, H, img.size(), &out);
-    return out;
-  }
   out.create(img.size(), img.type());
   const cv::Size half(img.cols / 2, img.rows / 2);
   for (int oy = 0; oy < 2; ++oy)
@@ -296,25 +287,26 @@ void warpRegion(const cv::Mat& src, const cv::Matx33d& M, const cv::Size& size, 
 // p.regions (interleaved layouts). A region's warp is the frame's, shifted to
 // the region's origin: the same pixels as the whole frame's warp there, up
 // to where the two tilings' tangent maps (each within kAffineTolerancePx of
-// the homography) round a sample position to another 1/32 px.
+// the homography) round a sample position to another 1/32 px. `warped`: two
+// buffers for the warped frames (the cache's, kept from call to call).
 void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv::Matx33d& Ha, const cv::Matx33d& Hb,
-                  double wb, const AmbientCompensationParams& p, cv::Mat* out)
+                  double wb, const AmbientCompensationParams& p, cv::Mat* warped, cv::Mat* out)
 {
   // Unrounded: the blend in float. (Each warp still rounds to 8 bits: warping
   // float copies measured 0.0948 px against 0.0968 px on the strobed bag's
   // scene, for a float conversion of both whole frames per on-frame.)
   const int depth = p.unrounded && a.depth() == CV_8U && !bayer(p.layout) ? CV_32F : a.depth();
-  if (p.regions.empty() || bayer(p.layout))
+  if (bayer(p.layout))
   {
-    const cv::Mat ia = have_motion ? warp(a, Ha, p.layout) : a;
-    const cv::Mat ib = have_motion ? warp(b, Hb, p.layout) : b;
+    const cv::Mat ia = have_motion ? warpBayer(a, Ha) : a;
+    const cv::Mat ib = have_motion ? warpBayer(b, Hb) : b;
     cv::addWeighted(ia, 1.0 - wb, ib, wb, 0.0, *out, depth);
     return;
   }
   out->create(a.size(), CV_MAKETYPE(depth, a.channels()));
   const cv::Rect frame(0, 0, a.cols, a.rows);
-  cv::Mat wa, wbuf;
-  for (const cv::Rect& region : p.regions)
+  const std::vector<cv::Rect> whole{frame};
+  for (const cv::Rect& region : p.regions.empty() ? whole : p.regions)
   {
     const cv::Rect r = region & frame;
     if (r.empty())
@@ -326,9 +318,9 @@ void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv
       continue;
     }
     const cv::Matx33d shift(1, 0, -r.x, 0, 1, -r.y, 0, 0, 1);
-    warpRegion(a, shift * Ha, r.size(), &wa);
-    warpRegion(b, shift * Hb, r.size(), &wbuf);
-    cv::addWeighted(wa, 1.0 - wb, wbuf, wb, 0.0, dst, depth);
+    warpRegion(a, shift * Ha, r.size(), &warped[0]);
+    warpRegion(b, shift * Hb, r.size(), &warped[1]);
+    cv::addWeighted(warped[0], 1.0 - wb, warped[1], wb, 0.0, dst, depth);
   }
 }
 
@@ -418,7 +410,22 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
   const double wb = std::min(std::max(w, 0.0), 1.0);
   const cv::Matx33d Ha = have_motion ? homographyPower(out.motion_ab, w) : cv::Matx33d::eye();
   const cv::Matx33d Hb = have_motion ? homographyPower(out.motion_ab, w - 1.0) : cv::Matx33d::eye();
-  warpAndBlend(first->image, second->image, have_motion, Ha, Hb, wb, p, &out.image);
+  // An earlier call's buffer that only the cache holds (its pixels are all
+  // written over where this estimate is defined).
+  int slot = -1;
+  for (int i = 0; cache && i < 2 && slot < 0; ++i)
+    if (cache->images[i].u && cache->images[i].u->refcount == 1)
+      slot = i;
+  if (slot >= 0)
+    out.image = cache->images[slot];
+  cv::Mat warped[2];
+  warpAndBlend(first->image, second->image, have_motion, Ha, Hb, wb, p, cache ? cache->warped : warped, &out.image);
+  if (cache && (slot < 0 || out.image.data != cache->images[slot].data))
+  {
+    slot = slot >= 0 ? slot : cache->next_image;
+    cache->next_image = 1 - slot;
+    cache->images[slot] = out.image;
+  }
   out.noise_variance_scale = (1.0 - wb) * (1.0 - wb) + wb * wb;
   if (have_motion && hint)
     out.status = fmt("warped along the given motion at fraction %.2f", w);

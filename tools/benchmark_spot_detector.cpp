@@ -178,8 +178,9 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
   // projector-off frames; each on-frame's ambient is compensated from the
   // off-frames before and after it (as the nodelet does, timed with the
   // detection): the whole frame for a full search, the searched regions when
-  // tracking, where each projector-off frame's tracking pyramid is also
-  // kept for the next on-frame (AmbientTrackingCache).
+  // tracking; each projector-off frame's tracking pyramid, and the buffers,
+  // are kept for the next on-frame (AmbientTrackingCache: one per detector,
+  // as each nodelet has its own).
   const double period = strobed ? 1.0 / 15.0 : 1.0 / 30.0;
   std::vector<SimFrame> seq;
   std::vector<AmbientFrame> offs;  // offs[k] before on-frame k, offs[k + 1] after it
@@ -194,7 +195,7 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
   }
   if (strobed)
     offs.push_back({sim.render(frames * period - 1.0 / 30.0, off).image, frames * period - 1.0 / 30.0});
-  AmbientTrackingCache cache;
+  AmbientTrackingCache cache, full_cache;  // one per detector's stream, as in the nodelet
   const auto ambientOf = [&](size_t k, const std::vector<cv::Rect>& regions, AmbientTrackingCache* c)
   {
     if (!strobed)
@@ -222,7 +223,7 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
       baseline.detect(im, PixelFormat::kBgr8);
       cpu_b.push_back(threadCpuMs() - c0);
       c0 = threadCpuMs();
-      const SpotDetectionResult f = full.detect(im, ambientOf(k, {}, nullptr), PixelFormat::kBgr8);
+      const SpotDetectionResult f = full.detect(im, ambientOf(k, {}, &full_cache), PixelFormat::kBgr8);
       cpu_f.push_back(threadCpuMs() - c0);
       c0 = threadCpuMs();
       if (!tracked.hasRegionStatistics(strobed, PixelFormat::kBgr8, im.size()))

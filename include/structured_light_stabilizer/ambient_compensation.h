@@ -123,9 +123,17 @@ struct AmbientTrackingCache
     std::vector<cv::Mat> pyramid;  // cv::buildOpticalFlowPyramid's, with gradients
   };
   Entry entries[2];
+  // The last two estimates' images, each written over by a later call once
+  // nothing else holds it (a fresh 12 MB float frame costs the kernel a page
+  // fault for every 4 kB page the blend touches: 600-3000 per frame). Two,
+  // because a SpotDetector keeps its last frame's ambient until the next.
+  cv::Mat images[2];
+  int next_image = 0;  // the slot a new buffer goes to
+  cv::Mat warped[2];   // scratch: the two frames warped, region by region
 };
 
-// cache (optional): reuses the pyramid of a frame seen in the last call.
+// cache (optional): reuses the pyramid of a frame seen in the last call, and
+// the last estimate's image buffer once the caller has let go of it.
 AmbientEstimate compensateAmbient(double on_stamp_s, const AmbientFrame& a, const AmbientFrame& b,
                                   const AmbientCompensationParams& params = AmbientCompensationParams(),
                                   const cv::Matx33d* motion_hint = nullptr, AmbientTrackingCache* cache = nullptr);

@@ -191,7 +191,8 @@ TEST(AmbientCompensation, UnroundedBlendIsCloserToTheTruth)
 
 // A stream of on-frames between off-frames: with the cache each off-frame's
 // pyramid is built once and reused for the next on-frame; the estimates are
-// those of calls without it.
+// those of calls without it. The last estimate's buffer is written over
+// once the caller has let go of it, never while the caller keeps it.
 TEST(AmbientCompensation, CachedPyramidsGiveTheSameEstimates)
 {
   const Simulator sim(movingRig(13, 1.0));
@@ -201,6 +202,8 @@ TEST(AmbientCompensation, CachedPyramidsGiveTheSameEstimates)
   for (int k = 0; k < 5; ++k)
     offs.push_back({sim.render(0.4 + 2 * k * kFramePeriod, off).image, 0.4 + 2 * k * kFramePeriod});
   AmbientTrackingCache cache;
+  cv::Mat kept_image, kept_truth;  // frame 1's estimate, which the caller keeps
+  const uchar* last_buffer = nullptr;
   for (int k = 0; k + 1 < 5; ++k)
   {
     const double t = 0.4 + (2 * k + 1) * kFramePeriod;
@@ -208,6 +211,20 @@ TEST(AmbientCompensation, CachedPyramidsGiveTheSameEstimates)
     const bool kept = k > 0 && cache.entries[1].stamp_s == offs[k].stamp_s;
     const AmbientEstimate cached = compensateAmbient(t, offs[k], offs[k + 1], {}, nullptr, &cache);
     ASSERT_TRUE(plain.valid && cached.valid);
+    if (k == 2)
+    {
+      EXPECT_NE(cached.image.data, kept_image.data) << "the kept estimate's buffer was written over";
+    }
+    else if (k > 0)
+    {
+      EXPECT_EQ(cached.image.data, last_buffer) << "frame " << k << ": the released buffer was not reused";
+    }
+    last_buffer = cached.image.data;
+    if (k == 1)
+    {
+      kept_image = cached.image;
+      kept_truth = plain.image.clone();
+    }
     EXPECT_EQ(k > 0, kept) << "frame " << k << ": the earlier off-frame was not kept from the last call";
     EXPECT_EQ(cache.entries[0].stamp_s, offs[k].stamp_s);
     EXPECT_EQ(cache.entries[1].stamp_s, offs[k + 1].stamp_s);
@@ -217,6 +234,7 @@ TEST(AmbientCompensation, CachedPyramidsGiveTheSameEstimates)
         EXPECT_EQ(plain.motion_ab(r, c), cached.motion_ab(r, c)) << "frame " << k;
     EXPECT_EQ(cv::norm(plain.image, cached.image, cv::NORM_INF), 0.0) << "frame " << k;
   }
+  EXPECT_EQ(cv::norm(kept_image, kept_truth, cv::NORM_INF), 0.0) << "a kept estimate changed";
 }
 
 TEST(AmbientCompensation, FastMotion)
