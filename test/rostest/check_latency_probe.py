@@ -2,10 +2,13 @@
 """Publishes camera_info at 20 Hz, each frame's spots 10 ms later and, for
 all but every fifth frame, its points 25 ms and its pose_delta 40 ms later
 (same stamp); the LatencyProbe must time the frames that have a pose_delta,
-at 40 ms plus this process's scheduling (no frame below 38 ms, the median
-at most 100 ms: Python's timers run late on a loaded machine, 49.5 ms
-measured during a build), and no others, and split them into the stages
-10 / 15 / 15 ms (each median within 8-50 ms)."""
+at 40 ms plus the scheduling of both processes (the median at least 38 ms
+and at most 100 ms: Python's timers run late on a loaded machine, 49.5 ms
+measured during a build; no frame below 32 ms, which is still above the
+points' 25 ms: the probe stamps camera_info when its callback runs, and a
+loaded manager can run it a few ms late, 36.7 ms measured once in CI), and
+no others, and split them into the stages 10 / 15 / 15 ms (each median
+within 8-50 ms)."""
 import os
 import threading
 import time
@@ -69,7 +72,8 @@ class LatencyProbeTest(unittest.TestCase):
         print("[ MEASURE ] latency probe: %s" % figures)
         self.assertEqual(figures.get("frames"), FRAMES)
         self.assertEqual(figures.get("timed"), expected, "frames without a pose_delta timed, or frames lost")
-        self.assertGreaterEqual(figures["latency_min_ms"], 1e3 * DELAY_S - 2.0)
+        self.assertGreaterEqual(figures["latency_min_ms"], 1e3 * DELAY_S - 8.0)
+        self.assertGreaterEqual(figures["latency_median_ms"], 1e3 * DELAY_S - 2.0)
         self.assertGreaterEqual(figures["latency_median_ms"], figures["latency_min_ms"])
         self.assertLessEqual(figures["latency_median_ms"], 100.0)
         self.assertGreaterEqual(figures["latency_p99_ms"], figures["latency_median_ms"])
