@@ -183,7 +183,8 @@ void spillCharge(Blooming blooming, float full_well, cv::Mat* charge)
   }
   // Each saturated pixel's excess, half of it carried down the column and
   // half up, dropped into the first pixels with room on the way.
-  cv::Mat excess;
+  // Kept per thread (a new frame-sized buffer per call cost its page faults).
+  thread_local cv::Mat excess;
   cv::subtract(*charge, full_well, excess);
   cv::max(excess, 0.0f, excess);
   cv::min(*charge, full_well, *charge);

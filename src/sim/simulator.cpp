@@ -114,7 +114,15 @@ void exposeRows(const RowInputs& in, SimFrame* frame)
   const int W = frame->image.cols, H = frame->image.rows;
   const int n = in.readout.samplesPerRow(W);
   const bool charge_path = in.readout.chargePath();
-  cv::Mat charge(charge_path ? H : 0, n, CV_32F);
+  // The charge image is kept per thread from frame to frame: a new 4-12 MB
+  // buffer per frame cost its first-touch page faults, about 2000 a frame.
+  cv::Mat charge;
+  if (charge_path)
+  {
+    thread_local cv::Mat kept;
+    kept.create(H, n, CV_32F);
+    charge = kept;  // a plain local from here on: the row workers write the caller's buffer
+  }
   cv::parallel_for_(cv::Range(0, H),
                     [&](const cv::Range& range)
                     {

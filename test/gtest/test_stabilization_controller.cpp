@@ -15,7 +15,6 @@ namespace
 {
 
 constexpr double kFrame = 1.0 / 30.0;
-constexpr double kDeg = M_PI / 180.0;
 
 // A valid estimate: the reference seen from the current camera at (t, w),
 // small and equal covariances.
