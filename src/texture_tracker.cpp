@@ -1,5 +1,7 @@
 #include "structured_light_stabilizer/texture_tracker.h"
 
+#include "pyramid_rows_ssse3.h"
+
 #include <cmath>
 
 #include <opencv2/imgproc.hpp>
@@ -173,7 +175,13 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
   split.resize(static_cast<size_t>(2 * w));
   int32_t* even = split.data();
   int32_t* odd = even + w;
-  auto at = [&](int x) { return std::min(std::max(reflect101(x, W), 0), W - 1) * CN + channel; };
+  // A column's sum (reflected at the borders) from the split rows.
+  auto col = [&](int x)
+  {
+    const int j = std::min(std::max(reflect101(x, W), 0), W - 1);
+    return (j & 1) ? odd[j >> 1] : even[j >> 1];
+  };
+  const bool ssse3 = CN == 3 && sizeof(T) == 1 && pyramid_rows::haveSsse3();
   for (int y = 0; y < h; ++y)
   {
     const T* r0 = image.ptr<T>(roi.y + reflect101(2 * y - 2, H)) + first;
@@ -181,14 +189,24 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
     const T* r2 = image.ptr<T>(roi.y + 2 * y) + first;
     const T* r3 = image.ptr<T>(roi.y + reflect101(2 * y + 1, H)) + first;
     const T* r4 = image.ptr<T>(roi.y + reflect101(2 * y + 2, H)) + first;
-    for (int x = 0; x < n; ++x)
-      c[x] = static_cast<Sum>(Sum(r0[x]) + r4[x] + 4 * (Sum(r1[x]) + r3[x]) + 6 * Sum(r2[x]));
     // The channel's sums split into even and odd columns, contiguous, so
     // that the horizontal taps of the interior outputs (2x - 2 >= 0,
     // 2x + 2 < W) vectorise: e[x-1] + e[x+1] + 4 (o[x-1] + o[x]) + 6 e[x].
-    for (int i = 0; i < w; ++i)
+    // bgr8 with SSSE3: the channel's bytes shuffled out of 16 pixels at a
+    // time, and only its sums taken; the columns after them as below.
+    int done = 0;
+    if (ssse3)
+    {
+      const uint8_t* const rows[5] = {reinterpret_cast<const uint8_t*>(r0), reinterpret_cast<const uint8_t*>(r1),
+                                      reinterpret_cast<const uint8_t*>(r2), reinterpret_cast<const uint8_t*>(r3),
+                                      reinterpret_cast<const uint8_t*>(r4)};
+      done = pyramid_rows::channelSums3Ssse3(rows, W, channel, even, odd);
+    }
+    for (int x = done * CN; x < n; ++x)
+      c[x] = static_cast<Sum>(Sum(r0[x]) + r4[x] + 4 * (Sum(r1[x]) + r3[x]) + 6 * Sum(r2[x]));
+    for (int i = (done + 1) / 2; i < w; ++i)
       even[i] = c[2 * i * CN + channel];
-    for (int i = 0; i < W / 2; ++i)
+    for (int i = done / 2; i < W / 2; ++i)
       odd[i] = c[(2 * i + 1) * CN + channel];
     float* o = dst->ptr<float>(y);
     const int last_inner = (W - 3) / 2;
@@ -197,8 +215,8 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
     for (int x = 0; x < w; x = x == 0 ? std::max(1, last_inner + 1) : x + 1)
     {
       const int xc = 2 * x;
-      const uint32_t sum = uint32_t(c[at(xc - 2)]) + c[at(xc + 2)] + 4 * (uint32_t(c[at(xc - 1)]) + c[at(xc + 1)]) +
-                           6 * uint32_t(c[at(xc)]);
+      const uint32_t sum =
+          uint32_t(col(xc - 2)) + col(xc + 2) + 4 * (uint32_t(col(xc - 1)) + col(xc + 1)) + 6 * uint32_t(col(xc));
       o[x] = static_cast<float>(sum) * scale;
     }
   }
