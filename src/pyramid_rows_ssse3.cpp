@@ -14,12 +14,6 @@ namespace pyramid_rows
 
 #if defined(SLS_SSSE3_ROWS)
 
-bool haveSsse3()
-{
-  static const bool have = __builtin_cpu_supports("ssse3");
-  return have;
-}
-
 namespace
 {
 // 16 pixels (48 bytes, three loads) to their channel bytes: lanes 0-7 the
@@ -87,11 +81,6 @@ int channelSums3Ssse3(const uint8_t* const r[5], int width, int channel, int32_t
 }
 
 #else
-
-bool haveSsse3()
-{
-  return false;
-}
 
 int channelSums3Ssse3(const uint8_t* const[5], int, int, int32_t*, int32_t*)
 {

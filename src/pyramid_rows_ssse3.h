@@ -4,7 +4,7 @@
 // instruction set (SSE2) has no byte shuffle, so without it the sums are taken
 // over all three channels of the interleaved rows and the wanted one picked
 // out afterwards, three times the work. Built only for x86 with GCC or Clang
-// (SLS_SSSE3_ROWS), used only where the CPU has SSSE3; the sums are the
+// (SLS_SSSE3_ROWS), used only where haveSsse3Kernels() (cpu_features.h); the sums are the
 // generic path's, exactly (integers).
 #pragma once
 
@@ -14,9 +14,6 @@ namespace structured_light_stabilizer
 {
 namespace pyramid_rows
 {
-
-// Whether this build has the SSSE3 sums and this CPU runs them.
-bool haveSsse3();
 
 // For the pixels [0, returned) of five rows r[0..4] of `width` 3-byte pixels
 // (returned: a multiple of 16, at most width), the channel `channel`'s

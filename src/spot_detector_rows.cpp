@@ -7,6 +7,7 @@
 
 #include <opencv2/core/hal/intrin.hpp>
 
+#include "cpu_features.h"
 #include "spot_detector_pixels.h"
 #include "spot_detector_rows_ssse3.h"
 
@@ -300,7 +301,7 @@ void interleavedRow(const uint8_t* row, const uint8_t* ambient, int width, int y
                     int k_third, int threshold, std::vector<Run>* runs, uint16_t* acc)
 {
   int x = 0;
-  if (kC == 3 && haveSsse3Rows())
+  if (kC == 3 && haveSsse3Kernels())
   {
     RunSink sink{runs, y};
     x = interleaved3RowSsse3(row, ambient, width, kS, kR, kT, refMode(kModes), thirdMode(kModes), k_ref, k_third,
@@ -408,16 +409,6 @@ BayerPass bayerPass(int signal, int modes)
                       : bayerPassOf<kPattern, 2>(signal);
 }
 }  // namespace
-
-bool haveSsse3Rows()
-{
-#if defined(SLS_SSSE3_ROWS)
-  static const bool have = __builtin_cpu_supports("ssse3");
-  return have;
-#else
-  return false;
-#endif
-}
 
 bool colourRowRuns(const cv::Mat& image, const cv::Mat& ambient, PixelFormat format, const ColourModel& model,
                    int k_ref, int k_third, int threshold, int gy, std::vector<Run>* runs, uint16_t* acc)

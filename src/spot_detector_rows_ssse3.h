@@ -2,7 +2,7 @@
 // (spot_detector_rows_ssse3.cpp): the baseline instruction set (SSE2) has no
 // byte shuffle, and its 3-channel deinterleave costs 40 instructions per 16
 // pixels, a third of the pass; pshufb does it in 15. Built only for x86 with
-// GCC or Clang (SLS_SSSE3_ROWS), used only where the CPU has SSSE3; the
+// GCC or Clang (SLS_SSSE3_ROWS), used only where haveSsse3Kernels() (cpu_features.h); the
 // scores, runs and sums are those of rows::colourRowRuns, bit for bit.
 #pragma once
 
@@ -17,9 +17,6 @@ namespace rows
 
 // Receives the hits of 16 pixels from x on: bit i of mask = pixel x + i.
 using HitSink = void (*)(void* context, int x, unsigned mask);
-
-// Whether this build has the SSSE3 rows and this CPU runs them.
-bool haveSsse3Rows();
 
 // Scores s - max(scale_ref(r), scale_third(t)) (saturating; with `ambient`,
 // each channel minus the ambient frame's first) of the pixels [0, returned)

@@ -1,5 +1,6 @@
 #include "structured_light_stabilizer/texture_tracker.h"
 
+#include "cpu_features.h"
 #include "pyramid_rows_ssse3.h"
 
 #include <cmath>
@@ -181,7 +182,7 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
     const int j = std::min(std::max(reflect101(x, W), 0), W - 1);
     return (j & 1) ? odd[j >> 1] : even[j >> 1];
   };
-  const bool ssse3 = CN == 3 && sizeof(T) == 1 && pyramid_rows::haveSsse3();
+  const bool ssse3 = CN == 3 && sizeof(T) == 1 && haveSsse3Kernels();
   for (int y = 0; y < h; ++y)
   {
     const T* r0 = image.ptr<T>(roi.y + reflect101(2 * y - 2, H)) + first;
@@ -204,7 +205,7 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
     }
     for (int x = done * CN; x < n; ++x)
       c[x] = static_cast<Sum>(Sum(r0[x]) + r4[x] + 4 * (Sum(r1[x]) + r3[x]) + 6 * Sum(r2[x]));
-    for (int i = (done + 1) / 2; i < w; ++i)
+    for (int i = done / 2; i < w; ++i)
       even[i] = c[2 * i * CN + channel];
     for (int i = done / 2; i < W / 2; ++i)
       odd[i] = c[(2 * i + 1) * CN + channel];
