@@ -137,14 +137,20 @@ public:
     return Eigen::Vector3d(xy.x(), xy.y(), 1.0);
   }
 
-  // Albedo (white = 1) at a point of the image.
-  double albedoAtPixel(double x, double y) const
+  // Albedo (white = 1) where a camera ray (x/z, y/z, 1) meets the plane.
+  double albedoOnRay(const Eigen::Vector3d& ray) const
   {
-    const Eigen::Vector3d ray = rayAt(x, y);
     const double s = n_.dot(t_) / n_.dot(ray);
-    const Eigen::Vector3d hb = inv_ * (s * ray);
-    return s > 0 ? detail_board::albedoAt(p_, hb.x(), hb.y()) / p_.white : 0.0;
+    if (!(s > 0))
+      return 0.0;
+    const Eigen::Vector3d p = s * ray;  // on the plane, camera frame; to the board's frame:
+    const double bx = inv_.linear().row(0).dot(p) + inv_.translation().x();
+    const double by = inv_.linear().row(1).dot(p) + inv_.translation().y();
+    return detail_board::albedoAt(p_, bx, by) / p_.white;
   }
+
+  // Albedo (white = 1) at a point of the image.
+  double albedoAtPixel(double x, double y) const { return albedoOnRay(rayAt(x, y)); }
 
   void truth(const ProjectorCalibration& proj, ChessboardSceneTruth* truth) const
   {
@@ -176,27 +182,41 @@ public:
   // The print's albedo times vignetting on the sub-pixels; a sub-pixel
   // crossed by an edge gets its covered fraction (8 x 8 samples), not the
   // value at its centre: point samples would put every edge on the
-  // sub-pixel lattice.
+  // sub-pixel lattice. A sub-pixel is crossed when one of its corners sees
+  // another albedo than its centre; the corners are evaluated once, a row of
+  // them at a time (each is shared by four sub-pixels).
   cv::Mat albedo() const
   {
-    cv::Mat alb(H_ * S_, W_ * S_, CV_32F);
+    const int w = W_ * S_, hgt = H_ * S_;
+    cv::Mat alb(hgt, w, CV_32F);
     const double h = 0.5 / S_;
-    for (int v = 0; v < H_ * S_; ++v)
-      for (int u = 0; u < W_ * S_; ++u)
+    std::vector<double> upper(w + 1), lower(w + 1);
+    const auto cornerRow = [&](int v, std::vector<double>* row)
+    {
+      for (int u = 0; u <= w; ++u)
+        (*row)[u] = albedoAtPixel(double(u) / S_ - 0.5, double(v) / S_ - 0.5);
+    };
+    cornerRow(0, &upper);
+    for (int v = 0; v < hgt; ++v)
+    {
+      cornerRow(v + 1, &lower);
+      for (int u = 0; u < w; ++u)
       {
         const double x = (u + 0.5) / S_ - 0.5, y = (v + 0.5) / S_ - 0.5;
-        double a = albedoAtPixel(x, y);
-        if (albedoAtPixel(x - h, y - h) != a || albedoAtPixel(x + h, y - h) != a || albedoAtPixel(x - h, y + h) != a ||
-            albedoAtPixel(x + h, y + h) != a)
+        const Eigen::Vector3d ray = rayAt(x, y);
+        double a = albedoOnRay(ray);
+        if (upper[u] != a || upper[u + 1] != a || lower[u] != a || lower[u + 1] != a)
         {
           a = 0.0;
           for (int j = 0; j < 8; ++j)
             for (int i = 0; i < 8; ++i)
               a += albedoAtPixel(x - h + (i + 0.5) * 2 * h / 8, y - h + (j + 0.5) * 2 * h / 8) / 64.0;
         }
-        const double cos4 = p_.vignetting ? std::pow(1.0 / rayAt(x, y).squaredNorm(), 2.0) : 1.0;
+        const double cos4 = p_.vignetting ? std::pow(1.0 / ray.squaredNorm(), 2.0) : 1.0;
         alb.at<float>(v, u) = static_cast<float>(a * cos4);
       }
+      upper.swap(lower);
+    }
     return alb;
   }
 
