@@ -81,21 +81,40 @@ std::vector<cv::Rect> mergeSearchRegions(const std::vector<cv::Rect>& regions, c
       out.push_back(c);
   }
   // Merge pairs into their bounding box where that wastes little, until no
-  // pair is worth it (a merged box can reach further boxes: start over after
-  // each merge). Regions may still overlap: SpotDetector::detectIn keeps one
-  // of a dot found twice.
-  bool merged = true;
-  while (merged)
+  // pair is worth it, always the first such pair (i, j) in the order of the
+  // list. A merged box can reach further boxes, but only pairs with the grown
+  // box i can have become worth merging: those before it are looked at first
+  // (the first pair in order), then i's pairs after it again. The same boxes
+  // as starting over after each merge, in about n^2 / 2 tests instead of
+  // n^2 / 2 per merge (a planner's band merges with ten dots' windows).
+  // Regions may still overlap: SpotDetector::detectIn keeps one of a dot
+  // found twice.
+  const auto erase = [&out](size_t k) { out.erase(out.begin() + static_cast<std::ptrdiff_t>(k)); };
+  size_t i = 0;
+  while (i < out.size())
   {
-    merged = false;
-    for (size_t i = 0; i < out.size() && !merged; ++i)
-      for (size_t j = i + 1; j < out.size() && !merged; ++j)
-        if (worthMerging(out[i], out[j]))
-        {
-          out[i] |= out[j];
-          out.erase(out.begin() + static_cast<std::ptrdiff_t>(j));
-          merged = true;
-        }
+    size_t j = i + 1;
+    while (j < out.size() && !worthMerging(out[i], out[j]))
+      ++j;
+    if (j == out.size())
+    {
+      ++i;
+      continue;
+    }
+    out[i] |= out[j];
+    erase(j);
+    for (size_t k = 0; k < i;)  // i grew: a box before it may now take it
+    {
+      if (!worthMerging(out[k], out[i]))
+      {
+        ++k;
+        continue;
+      }
+      out[k] |= out[i];
+      erase(i);
+      i = k;
+      k = 0;
+    }
   }
   std::sort(out.begin(), out.end(),
             [](const cv::Rect& a, const cv::Rect& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });

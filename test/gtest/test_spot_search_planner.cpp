@@ -77,6 +77,67 @@ TEST(SpotSearchRegions, ClippedEvenAndMergedOnlyWhenCheap)
   EXPECT_EQ(out.size(), 2u);
 }
 
+// The merging's definition, written the slow way: the first pair (in the
+// list's order) whose bounding box wastes at most a quarter of the pixels the
+// two cover is merged, and the search starts over, until no pair is left.
+// mergeSearchRegions must give the same boxes (it does not start over).
+std::vector<cv::Rect> mergeByDefinition(std::vector<cv::Rect> in, const cv::Size& frame)
+{
+  std::vector<cv::Rect> out;
+  for (const cv::Rect& r : in)
+  {
+    const int x0 = std::max(0, r.x) / 8 * 8, y0 = std::max(0, r.y) / 8 * 8;
+    const int x1 = std::min(frame.width, (r.x + r.width + 7) / 8 * 8);
+    const int y1 = std::min(frame.height, (r.y + r.height + 7) / 8 * 8);
+    if (x1 > x0 && y1 > y0)
+      out.emplace_back(x0, y0, x1 - x0, y1 - y0);
+  }
+  const auto worth = [](const cv::Rect& a, const cv::Rect& b)
+  { return (a | b).area() <= 1.25 * (double(a.area()) + b.area() - (a & b).area()); };
+  for (bool merged = true; merged;)
+  {
+    merged = false;
+    for (size_t i = 0; i < out.size() && !merged; ++i)
+      for (size_t j = i + 1; j < out.size() && !merged; ++j)
+        if ((merged = worth(out[i], out[j])))
+        {
+          out[i] |= out[j];
+          out.erase(out.begin() + static_cast<std::ptrdiff_t>(j));
+        }
+  }
+  std::sort(out.begin(), out.end(),
+            [](const cv::Rect& a, const cv::Rect& b) { return a.y != b.y ? a.y < b.y : a.x < b.x; });
+  return out;
+}
+
+TEST(SpotSearchRegions, MergedAsByTheDefinition)
+{
+  // Random windows of dots and bands (chains of overlapping boxes, boxes
+  // inside bands, boxes off the frame), 2000 sets: the same boxes.
+  const cv::Size frame(640, 480);
+  cv::RNG rng(20261204);
+  int merges = 0;
+  for (int trial = 0; trial < 2000; ++trial)
+  {
+    std::vector<cv::Rect> in;
+    const int n = rng.uniform(1, 60);
+    for (int k = 0; k < n; ++k)
+    {
+      if (rng.uniform(0, 20) == 0)
+        in.emplace_back(0, rng.uniform(-40, 480), 640, rng.uniform(10, 120));  // a band
+      else
+      {
+        const int h = rng.uniform(4, 40);
+        in.emplace_back(rng.uniform(-30, 650), rng.uniform(-30, 500), h, rng.uniform(std::max(4, h - 8), h + 8));
+      }
+    }
+    const std::vector<cv::Rect> expected = mergeByDefinition(in, frame);
+    ASSERT_EQ(mergeSearchRegions(in, frame), expected) << "trial " << trial;
+    merges += static_cast<int>(in.size() - expected.size());
+  }
+  EXPECT_GT(merges, 2000);  // the sets did exercise the merging
+}
+
 TEST(SpotSearchRegions, ParametersOutOfRangeAreReplacedWithAWarning)
 {
   SpotSearchParams p;
