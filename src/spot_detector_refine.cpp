@@ -200,11 +200,18 @@ RockMix rockMix(const PlaneWindow& w, const ColourModel& model, bool third_chann
 // What the window shows of the rock and the dot, per pixel.
 struct Decomposition
 {
-  RockMix mix;  // the rock's signal from its reference and third channels (colour frames without ambient)
-  const float* rock = nullptr;  // a reference + b third per pixel, where mix.a > 0
-  double gain = 1;              // 1 / (1 - a led_reference - b led_third): the dot's share of those channels put back
+  RockMix mix;         // the rock's signal from its reference and third channels (colour frames without ambient)
+  bool rock = false;   // mix.a > 0: the rock's signal is rockAt() (computed where needed, not for the whole window)
+  float a = 0, b = 0;  // mix.a, mix.b as floats
+  double gain = 1;     // 1 / (1 - a led_reference - b led_third): the dot's share of those channels put back
   bool ambient_known = false;
 };
+
+// The rock's signal at pixel i, a reference + b third (in float, as WeightRow computes it).
+inline float rockAt(const PlaneWindow& w, int i, const Decomposition& d)
+{
+  return d.a * w.reference[i] + d.b * w.third[i];
+}
 
 // The signal minus what the rock alone would give (before the plane).
 inline double baseValue(const PlaneWindow& w, int i, const Decomposition& d)
@@ -212,7 +219,7 @@ inline double baseValue(const PlaneWindow& w, int i, const Decomposition& d)
   if (w.ambient)
     return double(w.signal[i]) - w.ambient_signal[i];
   // Without a colour model the reference plane is not filled (0 x garbage can be NaN).
-  return d.rock ? double(w.signal[i]) - d.rock[i] : double(w.signal[i]);
+  return d.rock ? double(w.signal[i]) - rockAt(w, i, d) : double(w.signal[i]);
 }
 
 // The ambient light in the signal channel at pixel i, given the added light P.
@@ -229,33 +236,50 @@ void markUsable(const PlaneWindow& pw, WeightWindow* win)
 {
   const int H = pw.H, n = 2 * H + 1, stride = pw.stride;
   static_assert(PlaneWindow::kSample == 1, "usable is the sample bit");
-  uint8_t any = 0;
+  bool row_clipped[2 * PlaneWindow::kMaxRadius + 1];
+  bool any = false;
   for (int r = 0; r < n; ++r)
   {
     const uint8_t* f = pw.flags + r * stride;
     uint8_t* u = win->usable + r * stride;
+    uint8_t acc = 0;
     int k = 0;
 #if CV_SIMD128
-    cv::v_uint8x16 acc = cv::v_setzero_u8();
-    const cv::v_uint8x16 one = cv::v_setall_u8(1);
-    for (; k + 16 <= n; k += 16)
+    // Chunks of sixteen, the last one ending at the row's end (it may
+    // overlap the one before: the same bytes again).
+    if (n >= 16)
     {
-      const cv::v_uint8x16 v = cv::v_load(f + k);
-      cv::v_store(u + k, v & one);
-      acc = acc | v;
+      cv::v_uint8x16 vacc = cv::v_setzero_u8();
+      const cv::v_uint8x16 one = cv::v_setall_u8(1);
+      for (int c = 0;; c += 16)
+      {
+        const int at = std::min(c, n - 16);
+        const cv::v_uint8x16 v = cv::v_load(f + at);
+        cv::v_store(u + at, v & one);
+        vacc = vacc | v;
+        if (at == n - 16)
+          break;
+      }
+      acc = static_cast<uint8_t>(cv::v_reduce_max(vacc & cv::v_setall_u8(PlaneWindow::kClipped)));
+      k = n;
     }
-    any |= static_cast<uint8_t>(cv::v_reduce_max(acc & cv::v_setall_u8(PlaneWindow::kClipped)));
 #endif
     for (; k < n; ++k)
     {
       u[k] = f[k] & PlaneWindow::kSample;
-      any |= f[k];
+      acc |= f[k];
     }
+    row_clipped[r] = (acc & PlaneWindow::kClipped) != 0;
+    any = any || row_clipped[r];
   }
-  win->any_clipped = (any & PlaneWindow::kClipped) != 0;
-  if (!win->any_clipped)
+  win->any_clipped = any;
+  if (!any)
     return;
+  // A clipped pixel's row and the rows above and below it.
   for (int dy = -H; dy <= H; ++dy)
+  {
+    if (!row_clipped[dy + H])
+      continue;
     for (int dx = -H; dx <= H; ++dx)
     {
       if (!(pw.flags[pw.index(dx, dy)] & PlaneWindow::kClipped))
@@ -270,15 +294,17 @@ void markUsable(const PlaneWindow& pw, WeightWindow* win)
       if (dy < H)
         win->usable[pw.index(dx, dy + 1)] = 0;
     }
+  }
 }
 
 // One row of the weight field (see buildWeights): v = P / alpha at the
 // samples, 0 elsewhere and in the row's padding; the number of samples.
 struct WeightRow
 {
-  const float* other;  // base = signal - c * other
-  float c, gain, inv_mean, floor, lo, hi;
-  bool ambient, normalised;
+  const float* other;  // base = signal - c * other, or with mix signal - (c * other + b * third)
+  const float* third;
+  float c, b, gain, inv_mean, floor, lo, hi;
+  bool mix, ambient, normalised;
   int operator()(const PlaneWindow& pw, int row, float p0, float pbx, float* v) const;
 };
 
@@ -288,17 +314,20 @@ int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, f
   int count = 0, k = 0;
 #if CV_SIMD128
   // The scalar loop's operations in the same order: the same floats.
-  const cv::v_float32x4 vc = cv::v_setall_f32(c), vg = cv::v_setall_f32(gain), vp0 = cv::v_setall_f32(p0),
-                        vpbx = cv::v_setall_f32(pbx), vmean = cv::v_setall_f32(inv_mean), vfl = cv::v_setall_f32(floor),
-                        vlo = cv::v_setall_f32(lo), vhi = cv::v_setall_f32(hi), zero = cv::v_setzero_f32();
+  const cv::v_float32x4 vc = cv::v_setall_f32(c), vb = cv::v_setall_f32(b), vg = cv::v_setall_f32(gain),
+                        vp0 = cv::v_setall_f32(p0), vpbx = cv::v_setall_f32(pbx), vmean = cv::v_setall_f32(inv_mean),
+                        vfl = cv::v_setall_f32(floor), vlo = cv::v_setall_f32(lo), vhi = cv::v_setall_f32(hi),
+                        zero = cv::v_setzero_f32();
   const cv::v_uint32x4 sample_bit = cv::v_setall_u32(PlaneWindow::kSample), vn = cv::v_setall_u32(n);
   cv::v_uint32x4 lane(0, 1, 2, 3), counted = cv::v_setzero_u32();
   for (; k < pw.stride; k += 4, lane += cv::v_setall_u32(4))
   {
     const int i = row + k;
     const cv::v_float32x4 sig = cv::v_load_aligned(pw.signal + i);
-    const cv::v_float32x4 added =
-        (sig - vc * cv::v_load_aligned(other + i) - (vp0 + vpbx * cv::v_cvt_f32(cv::v_reinterpret_as_s32(lane)))) * vg;
+    cv::v_float32x4 rock = vc * cv::v_load_aligned(other + i);
+    if (mix)
+      rock = rock + vb * cv::v_load_aligned(third + i);
+    const cv::v_float32x4 added = (sig - rock - (vp0 + vpbx * cv::v_cvt_f32(cv::v_reinterpret_as_s32(lane)))) * vg;
     cv::v_float32x4 val = added;
     if (normalised)
     {
@@ -320,7 +349,8 @@ int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, f
       continue;
     }
     ++count;
-    const float added = (pw.signal[i] - c * other[i] - (p0 + pbx * k)) * gain;
+    const float rock = mix ? c * other[i] + b * third[i] : c * other[i];
+    const float added = (pw.signal[i] - rock - (p0 + pbx * k)) * gain;
     float alpha = 1.0f;
     if (normalised)
     {
@@ -347,21 +377,15 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, bool third_ch
   win->H = H;
   win->stride = pw.stride;
   Decomposition d;
-  alignas(16) float rock[PlaneWindow::kSize];
   if (pw.colour && !pw.ambient && rs.subtract_texture)
   {
     d.mix = rockMix(pw, model, third_channel);
-    if (d.mix.a > 0.0)
-    {
-      const float a = static_cast<float>(d.mix.a), b = static_cast<float>(d.mix.b);
-      const int len = (2 * H + 1) * pw.stride;
-      for (int i = 0; i < len; ++i)
-        rock[i] = a * pw.reference[i] + b * pw.third[i];
-      d.rock = rock;
-    }
+    d.rock = d.mix.a > 0.0;
+    d.a = static_cast<float>(d.mix.a);
+    d.b = static_cast<float>(d.mix.b);
     d.gain = 1.0 / std::max(0.5, 1.0 - d.mix.a * model.led_reference - d.mix.b * model.led_third);
   }
-  d.ambient_known = pw.ambient || d.rock != nullptr;
+  d.ambient_known = pw.ambient || d.rock;
   RingSample samples[kMaxRing];
   int n = 0;
   double signal_sum = 0;
@@ -388,8 +412,11 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, bool third_ch
   // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
   // (A mono window fills no reference plane: without a rock model it subtracts 0 x signal, never 0 x garbage.)
   WeightRow weigh;
-  weigh.other = pw.ambient ? pw.ambient_signal : (d.rock ? d.rock : pw.signal);
-  weigh.c = pw.ambient || d.rock ? 1.0f : 0.0f;
+  weigh.mix = !pw.ambient && d.rock;
+  weigh.other = pw.ambient ? pw.ambient_signal : (d.rock ? pw.reference : pw.signal);
+  weigh.third = pw.third;
+  weigh.c = pw.ambient ? 1.0f : (d.rock ? d.a : 0.0f);
+  weigh.b = d.b;
   weigh.gain = static_cast<float>(d.gain);
   weigh.inv_mean = static_cast<float>(1.0 / (mean_ambient + floor));
   weigh.floor = static_cast<float>(floor);
