@@ -409,7 +409,7 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, bool third_ch
   // noise of the border (which the ambient estimate shares).
   const double mean_ambient = n ? ambient_sum / n : 0.0, floor = std::max(rs.albedo_floor_dn, win->noise);
   win->normalised = rs.normalise_albedo && d.ambient_known && mean_ambient >= 2.0 * floor;
-  // base = signal - c * other; the ambient = signal - P, or the ambient frame's.
+  // base = signal - c * other (- b * third: the rock's mix); the ambient = signal - P, or the ambient frame's.
   // (A mono window fills no reference plane: without a rock model it subtracts 0 x signal, never 0 x garbage.)
   WeightRow weigh;
   weigh.mix = !pw.ambient && d.rock;

@@ -85,8 +85,9 @@ std::vector<cv::Rect> mergeSearchRegions(const std::vector<cv::Rect>& regions, c
   // list. A merged box can reach further boxes, but only pairs with the grown
   // box i can have become worth merging: those before it are looked at first
   // (the first pair in order), then i's pairs after it again. The same boxes
-  // as starting over after each merge, in about n^2 / 2 tests instead of
-  // n^2 / 2 per merge (a planner's band merges with ten dots' windows).
+  // as starting over after each merge, in about n^2 / 2 tests and n more per
+  // merge instead of n^2 / 2 per merge (a planner's band merges with ten
+  // dots' windows).
   // Regions may still overlap: SpotDetector::detectIn keeps one of a dot
   // found twice.
   const auto erase = [&out](size_t k) { out.erase(out.begin() + static_cast<std::ptrdiff_t>(k)); };
