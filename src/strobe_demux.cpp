@@ -59,18 +59,55 @@ double strobePairScore(const cv::Mat& current, const cv::Mat& previous)
 
 StrobeDemux::StrobeDemux(const StrobeDemuxParams& params) : params_(params), phase_(params.phase) {}
 
-bool StrobeDemux::parityOn(const StrobedFrame& f)
+// Exposures lost between the last frame and one stamped `stamp_s`: the step
+// in periods (the median of the recent steps), rounded, less one. Each stamp
+// may be off its exposure by up to a quarter of a period (a step then
+// differs from a whole number of periods by less than a half). Gaps of more
+// than kMaxLost frames (a pause, a restart) are left to the vote.
+long StrobeDemux::lostBefore(double stamp_s)
 {
+  constexpr size_t kSteps = 15, kMinSteps = 3;
+  constexpr long kMaxLost = 30;
+  if (exposure_ < 0)
+    return 0;
+  const double step = stamp_s - last_stamp_;
+  if (!(step > 0.0) || !std::isfinite(step))
+    return 0;  // a stamp that goes back (a bag looping) or repeats: no gap to count
+  long lost = 0;
+  if (steps_.size() >= kMinSteps)
+  {
+    std::vector<double> sorted(steps_.begin(), steps_.end());
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double period = sorted[sorted.size() / 2];
+    const double frames = std::round(step / period);
+    if (frames >= 2.0 && frames <= kMaxLost + 1)
+      lost = static_cast<long>(frames) - 1;
+  }
+  steps_.push_back(step);
+  if (steps_.size() > kSteps)
+    steps_.pop_front();
+  return lost;
+}
+
+bool StrobeDemux::parityOn(StrobedFrame* frame)
+{
+  StrobedFrame& f = *frame;
+  const long lost = params_.stamp_gaps ? lostBefore(f.stamp_s) : 0;
+  missed_ += lost;
+  exposure_ += 1 + lost;
+  last_stamp_ = f.stamp_s;
+  f.exposure = exposure_;
   // The vote keeps its own (decimated) copy: the caller's image may not outlive the call.
   const cv::Mat current = params_.auto_phase ? decimated(f.image) : cv::Mat();
-  if (params_.auto_phase && !previous_.empty() && previous_.size() == current.size() &&
+  // An odd number of frames lost in between: both frames of the pair have one parity.
+  if (params_.auto_phase && lost % 2 == 0 && !previous_.empty() && previous_.size() == current.size() &&
       previous_.type() == current.type())
   {
     last_score_ = tailBalance(current, previous_);
     if (last_score_ != 0.0)
     {
       // The vote, in the phase's terms: the parity that this pair says is on.
-      const int says_on_parity = (last_score_ > 0.0 ? f.index : f.index + 1) % 2;
+      const int says_on_parity = static_cast<int>((last_score_ > 0.0 ? f.exposure : f.exposure + 1) % 2);
       vote_history_.push_back(says_on_parity);
       while (static_cast<int>(vote_history_.size()) > params_.votes)
         vote_history_.pop_front();
@@ -84,15 +121,16 @@ bool StrobeDemux::parityOn(const StrobedFrame& f)
     }
   }
   previous_ = current;
-  return f.index % 2 == phase_;
+  return f.exposure % 2 == phase_;
 }
 
 std::vector<StrobedFrame> StrobeDemux::push(const cv::Mat& image, double stamp_s, std::vector<StrobedFrame>* dropped)
 {
-  StrobedFrame f{image, stamp_s, false, count_++};
+  StrobedFrame f{image, stamp_s, false, count_, count_};
+  ++count_;
   if (params_.mode == StrobeMode::kParity)
   {
-    f.projector_on = parityOn(f);
+    f.projector_on = parityOn(&f);
     return {f};
   }
   waiting_.push_back(f);

@@ -13,7 +13,13 @@
 //    of an on-frame and the ambient frame before it has a bright positive
 //    tail (the dots) and no matching negative one, so each consecutive pair
 //    votes, and the phase follows the majority of the last `votes` pairs
-//    (a dropped frame flips the alternation; the votes flip it back).
+//    (a dropped frame flips the alternation; the votes flip it back). With
+//    `stamp_gaps`, a gap in the stamps counts the exposures that never
+//    arrived (a stamp step in frame periods, rounded, less one; the period is
+//    the median of the last 15 steps, and each stamp may be off its exposure
+//    by up to a quarter period), so a frame lost in transit or by the
+//    camera keeps the alternation without a vote; a pair with an odd number
+//    of frames lost between them has one parity and does not vote.
 //
 // Contract: images of any type OpenCV can subtract (one stream keeps one
 // type and size); stamps in seconds. Frames come out in the order they went
@@ -44,6 +50,7 @@ struct StrobeDemuxParams
   int phase = 0;           // 0: the first frame is on, 1: the second
   bool auto_phase = true;  // correct the phase from the images
   int votes = 9;           // pairs in the vote (odd)
+  bool stamp_gaps = true;  // count the exposures missing between stamps
   // Trigger.
   double tolerance_s = 0.005;  // |frame stamp - pulse time| for a frame lit by that pulse
   double wait_s = 0.5;         // how long a frame waits for the pulse times to pass it
@@ -57,6 +64,9 @@ struct StrobedFrame
   double stamp_s = 0.0;
   bool projector_on = false;
   int index = 0;  // order of arrival
+  // Parity: the exposure's number, arrivals plus the frames the stamp gaps
+  // say were lost (= index without stamp_gaps); trigger mode: index.
+  long exposure = 0;
 };
 
 class StrobeDemux
@@ -74,15 +84,22 @@ public:
   // Parity: the phase in force (0: even arrivals on) and the last pair's score.
   int phase() const { return phase_; }
   double lastScore() const { return last_score_; }
+  // Parity with stamp_gaps: exposures counted as lost so far.
+  long missedExposures() const { return missed_; }
 
 private:
   std::vector<StrobedFrame> decideWaiting(double now_s, std::vector<StrobedFrame>* dropped);
-  bool parityOn(const StrobedFrame& f);
+  bool parityOn(StrobedFrame* f);
+  long lostBefore(double stamp_s);
 
   StrobeDemuxParams params_;
   int phase_ = 0;
   int count_ = 0;
-  cv::Mat previous_;  // decimated copy of the last frame (parity vote)
+  long exposure_ = -1;        // parity: the last frame's exposure number
+  double last_stamp_ = 0.0;   // parity: the last frame's stamp (valid once exposure_ >= 0)
+  std::deque<double> steps_;  // parity: the last positive stamp steps (s)
+  long missed_ = 0;           // parity: exposures counted as lost from the stamps
+  cv::Mat previous_;          // decimated copy of the last frame (parity vote)
   double last_score_ = 0.0;
   std::deque<int> vote_history_;  // +1: the pair says "this frame is on"
   std::deque<StrobedFrame> waiting_;

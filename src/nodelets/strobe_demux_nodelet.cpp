@@ -101,6 +101,7 @@ bool StrobeDemuxNodelet::readParams(StrobeDemuxParams* p)
   p->phase = pnh.param("phase", p->phase);
   p->auto_phase = pnh.param("auto_phase", p->auto_phase);
   p->votes = pnh.param("votes", p->votes);
+  p->stamp_gaps = pnh.param("stamp_gaps", p->stamp_gaps);
   p->tolerance_s = pnh.param("trigger_tolerance", p->tolerance_s);
   p->wait_s = pnh.param("trigger_wait", p->wait_s);
   const std::string why = p->validate();
@@ -207,6 +208,7 @@ void StrobeDemuxNodelet::diagnose(diagnostic_updater::DiagnosticStatusWrapper& s
   stat.add("frames dropped", framesDropped());
   stat.add("last drop", lastDropReason());
   stat.add("parity phase", demux_->phase());
+  stat.add("exposures lost (stamp gaps)", demux_->missedExposures());
 }
 
 }  // namespace structured_light_stabilizer

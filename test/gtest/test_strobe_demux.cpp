@@ -1,8 +1,9 @@
 // Splitting a strobed stream (strobe_demux.h) on simulator frames with the
 // truth of which frames had the projector on: by parity with the phase
 // found from the images (also after a dropped frame and with the dots at
-// 30 % of the sunlit rock), and by the projector's pulse times (pulses
+// 30 % of the sunlit rock), with lost frames counted from the stamps' gaps, and by the projector's pulse times (pulses
 // before or after the frames, a frame without pulse information dropped).
+#include <algorithm>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -24,9 +25,12 @@ struct Stream
 };
 
 // `n` frames at 30 Hz, the projector on in the frames where index % 2 ==
-// on_parity, the rig moving; frame `skip` (if >= 0) lost in transit.
-Stream strobedStream(int n, int on_parity, int skip, double dot_to_sun)
+// on_parity, the rig moving; the frames in `lost` lost in transit; each
+// stamp off its exposure by up to +-jitter frame periods (uniform; a
+// software stamp taken on arrival).
+Stream strobedStream(int n, int on_parity, const std::vector<int>& lost, double dot_to_sun, double jitter = 0.0)
 {
+  cv::RNG rng(5);
   SimulatorParams p;
   applySimRadiometry(studySimRadiometry(), &p);  // the historical camera; the ratio below
   p.rock.seed = 21;
@@ -39,12 +43,12 @@ Stream strobedStream(int n, int on_parity, int skip, double dot_to_sun)
   Stream s;
   for (int i = 0; i < n; ++i)
   {
-    if (i == skip)
+    if (std::find(lost.begin(), lost.end(), i) != lost.end())
       continue;
     FrameRequest r;
     r.projector_on = i % 2 == on_parity;
     s.images.push_back(sim.render(i / 30.0, r).image);
-    s.stamps.push_back(i / 30.0);
+    s.stamps.push_back((i + rng.uniform(-jitter, jitter)) / 30.0);
     s.on.push_back(r.projector_on);
   }
   return s;
@@ -54,10 +58,12 @@ Stream strobedStream(int n, int on_parity, int skip, double dot_to_sun)
 
 TEST(StrobeDemux, ParityFindsThePhaseAndRecoversAfterADroppedFrame)
 {
-  // Started on the wrong phase (the first frame is ambient), and frame 20 lost.
-  const Stream s = strobedStream(44, 1, 20, 0.3);
+  // Started on the wrong phase (the first frame is ambient), and frame 20
+  // lost; the stamps not read (the vote alone recovers).
+  const Stream s = strobedStream(44, 1, {20}, 0.3);
   StrobeDemuxParams p;
   p.phase = 0;
+  p.stamp_gaps = false;
   StrobeDemux demux(p);
   int wrong_after_settling = 0, wrong = 0;
   for (size_t i = 0; i < s.images.size(); ++i)
@@ -78,12 +84,64 @@ TEST(StrobeDemux, ParityFindsThePhaseAndRecoversAfterADroppedFrame)
 
 TEST(StrobeDemux, FixedPhaseWithoutVoting)
 {
-  const Stream s = strobedStream(6, 0, -1, 0.3);
+  const Stream s = strobedStream(6, 0, {}, 0.3);
   StrobeDemuxParams p;
   p.auto_phase = false;
   StrobeDemux demux(p);
   for (size_t i = 0; i < s.images.size(); ++i)
     EXPECT_EQ(demux.push(s.images[i], s.stamps[i])[0].projector_on, s.on[i]);
+}
+
+// Frames lost one, two and three in a row (an odd and an even number), the
+// stamps jittered by +-0.2 of a period: the gaps in the stamps keep the
+// alternation, so after the vote found the phase at the start no frame is
+// misrouted, and with the phase given no frame at all.
+TEST(StrobeDemux, ParityCountsTheFramesLostFromTheStamps)
+{
+  const std::vector<int> lost{14, 21, 22, 31, 32, 33, 40};
+  const Stream s = strobedStream(52, 1, lost, 0.3, 0.2);
+  for (const bool auto_phase : {true, false})
+  {
+    StrobeDemuxParams p;
+    p.phase = auto_phase ? 0 : 1;  // auto: started on the wrong phase
+    p.auto_phase = auto_phase;
+    StrobeDemux demux(p);
+    int wrong = 0, wrong_at_start = 0;
+    for (size_t i = 0; i < s.images.size(); ++i)
+    {
+      const std::vector<StrobedFrame> out = demux.push(s.images[i], s.stamps[i]);
+      ASSERT_EQ(out.size(), 1u);
+      const bool mistaken = out[0].projector_on != s.on[i];
+      (i < 10 ? wrong_at_start : wrong) += mistaken;
+    }
+    std::cout << "[ MEASURE ] parity from stamps (auto_phase " << auto_phase << "): " << wrong_at_start
+              << " misrouted in the first 10 frames, " << wrong << " after, " << demux.missedExposures()
+              << " exposures counted as lost (truth " << lost.size() << ")\n";
+    EXPECT_EQ(demux.missedExposures(), static_cast<long>(lost.size()));
+    EXPECT_EQ(wrong, 0);
+    if (!auto_phase)
+    {
+      EXPECT_EQ(wrong_at_start, 0);
+    }
+  }
+}
+
+// Jittered stamps (+-0.24 of a period) with no frame lost count no loss; a
+// stamp that goes back (a bag replayed in a loop) counts none either.
+TEST(StrobeDemux, JitterAndStampsGoingBackAreNotLosses)
+{
+  StrobeDemux demux;
+  const cv::Mat img(8, 8, CV_8UC1, cv::Scalar(1));
+  cv::RNG rng(7);
+  for (int i = 0; i < 300; ++i)
+    demux.push(img, (i + rng.uniform(-0.24, 0.24)) / 30.0);
+  EXPECT_EQ(demux.missedExposures(), 0);
+  for (int i = 0; i < 10; ++i)
+    demux.push(img, i / 30.0);
+  EXPECT_EQ(demux.missedExposures(), 0);
+  // A pause of two seconds is left to the vote (more than 30 frames).
+  demux.push(img, 12.0);
+  EXPECT_EQ(demux.missedExposures(), 0);
 }
 
 TEST(StrobeDemux, PulseTimesBeforeOrAfterTheFrames)
