@@ -54,6 +54,20 @@ Stream strobedStream(int n, int on_parity, const std::vector<int>& lost, double 
   return s;
 }
 
+// Parity: each frame of the stream through the demux, true where it was
+// routed to the wrong topic.
+std::vector<bool> misrouted(StrobeDemux* demux, const Stream& s)
+{
+  std::vector<bool> wrong;
+  for (size_t i = 0; i < s.images.size(); ++i)
+  {
+    const std::vector<StrobedFrame> out = demux->push(s.images[i], s.stamps[i]);
+    EXPECT_EQ(out.size(), 1u);
+    wrong.push_back(out.empty() || out[0].projector_on != s.on[i]);
+  }
+  return wrong;
+}
+
 }  // namespace
 
 TEST(StrobeDemux, ParityFindsThePhaseAndRecoversAfterADroppedFrame)
@@ -65,16 +79,14 @@ TEST(StrobeDemux, ParityFindsThePhaseAndRecoversAfterADroppedFrame)
   p.phase = 0;
   p.stamp_gaps = false;
   StrobeDemux demux(p);
+  const std::vector<bool> mistaken = misrouted(&demux, s);
   int wrong_after_settling = 0, wrong = 0;
-  for (size_t i = 0; i < s.images.size(); ++i)
+  for (size_t i = 0; i < mistaken.size(); ++i)
   {
-    const std::vector<StrobedFrame> out = demux.push(s.images[i], s.stamps[i]);
-    ASSERT_EQ(out.size(), 1u);
-    const bool mistaken = out[0].projector_on != s.on[i];
-    wrong += mistaken;
+    wrong += mistaken[i];
     // Settling: the vote needs a majority of its window after the start and after the loss.
     if ((i >= 10 && i < 20) || i >= 30)
-      wrong_after_settling += mistaken;
+      wrong_after_settling += mistaken[i];
   }
   std::cout << "[ MEASURE ] parity: " << wrong << " of " << s.images.size()
             << " frames misrouted while the vote settled, last pair score " << demux.lastScore() << "\n";
@@ -106,14 +118,9 @@ TEST(StrobeDemux, ParityCountsTheFramesLostFromTheStamps)
     p.phase = auto_phase ? 0 : 1;  // auto: started on the wrong phase
     p.auto_phase = auto_phase;
     StrobeDemux demux(p);
-    int wrong = 0, wrong_at_start = 0;
-    for (size_t i = 0; i < s.images.size(); ++i)
-    {
-      const std::vector<StrobedFrame> out = demux.push(s.images[i], s.stamps[i]);
-      ASSERT_EQ(out.size(), 1u);
-      const bool mistaken = out[0].projector_on != s.on[i];
-      (i < 10 ? wrong_at_start : wrong) += mistaken;
-    }
+    const std::vector<bool> mistaken = misrouted(&demux, s);
+    const int wrong_at_start = static_cast<int>(std::count(mistaken.begin(), mistaken.begin() + 10, true));
+    const int wrong = static_cast<int>(std::count(mistaken.begin() + 10, mistaken.end(), true));
     std::cout << "[ MEASURE ] parity from stamps (auto_phase " << auto_phase << "): " << wrong_at_start
               << " misrouted in the first 10 frames, " << wrong << " after, " << demux.missedExposures()
               << " exposures counted as lost (truth " << lost.size() << ")\n";
