@@ -81,7 +81,7 @@ public:
   // Trigger mode: a projector pulse at this time (s).
   std::vector<StrobedFrame> addPulse(double stamp_s, std::vector<StrobedFrame>* dropped = nullptr);
 
-  // Parity: the phase in force (0: even arrivals on) and the last pair's score.
+  // Parity: the phase in force (0: even exposures on) and the last pair's score.
   int phase() const { return phase_; }
   double lastScore() const { return last_score_; }
   // Parity with stamp_gaps: exposures counted as lost so far.
