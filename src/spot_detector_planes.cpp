@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "spot_detector_pixels.h"
+#include "structured_light_stabilizer/detail/math.h"
 
 namespace structured_light_stabilizer
 {
@@ -97,25 +98,24 @@ void FramePlanes::buildMatchedScores(const FastParams& p, const MatchedNoise* fi
   matched_peak_ = std::max(threshold_, static_cast<int>(std::ceil(kMatchedUnit * p.matched_peak_snr * sigma)));
 }
 
-MatchedNoise FramePlanes::sampledNoise(const cv::Mat& smooth) const
+MatchedNoise FramePlanes::sampledNoise(const cv::Mat& smooth)
 {
-  std::vector<float> sample;
-  sample.reserve(static_cast<size_t>(grid_rows_ / 4 + 1) * static_cast<size_t>(grid_cols_ / 4 + 1));
+  std::vector<float>& sample = noise_sample_;  // kept: 256 kB a frame otherwise
+  sample.clear();
   for (int gy = 0; gy < grid_rows_; gy += 4)
-    for (int gx = 0; gx < grid_cols_; gx += 4)
-      sample.push_back(smooth.at<float>(gy, gx));
-  auto median = [](std::vector<float>* v)
   {
-    std::nth_element(v->begin(), v->begin() + v->size() / 2, v->end());
-    return (*v)[v->size() / 2];
-  };
-  const float centre = median(&sample);
+    const float* row = smooth.ptr<float>(gy);
+    for (int gx = 0; gx < grid_cols_; gx += 4)
+      sample.push_back(row[gx]);
+  }
+  // The medians of 65536 cells by histogram: the same values as nth_element's.
+  const float centre = detail::medianOfMany(&sample, &noise_scratch_);
   for (float& v : sample)
     v = std::abs(v - centre);
   MatchedNoise noise;
   noise.centre = centre;
   // At least a tenth of a DN: a noise-free frame must not make every cell a candidate.
-  noise.sigma = std::max(0.1, 1.4826 * median(&sample));
+  noise.sigma = std::max(0.1, 1.4826 * detail::medianOfMany(&sample, &noise_scratch_));
   noise.valid = true;
   return noise;
 }
@@ -222,6 +222,28 @@ void FramePlanes::scoreRow(int gy, int16_t* out) const
   const int n = grid_cols_;
   std::vector<int>& c = decoded_;  // scratch kept across rows and frames
   std::vector<int>& a = decoded_ambient_;
+  if (!model_.colour)
+  {
+    // Intensity path: the row's intensities less the ambient's, less the
+    // background of each block, block by block.
+    c.resize(static_cast<size_t>(n));
+    intensityRow(image_, gy, c.data());
+    if (!ambient_.empty())
+    {
+      a.resize(static_cast<size_t>(n));
+      intensityRow(ambient_, gy, a.data());
+      for (int gx = 0; gx < n; ++gx)
+        c[gx] -= a[gx];
+    }
+    const int* level = block_level_.ptr<int>(gy / kBlock);
+    for (int x0 = 0; x0 < n; x0 += kBlock)
+    {
+      const int lv = level[x0 / kBlock], x1 = std::min(n, x0 + kBlock);
+      for (int gx = x0; gx < x1; ++gx)
+        out[gx] = static_cast<int16_t>(std::min(32767, std::max(-32768, c[gx] - lv)));
+    }
+    return;
+  }
   c.resize(3 * static_cast<size_t>(n));
   a.clear();
   pixels::decodeRow(image_, format_, gy, n, c.data());
@@ -233,23 +255,29 @@ void FramePlanes::scoreRow(int gy, int16_t* out) const
   for (int gx = 0; gx < n; ++gx)
   {
     Triple t{{c[3 * gx], c[3 * gx + 1], c[3 * gx + 2]}};
-    int v;
-    if (model_.colour)
-    {
-      if (!a.empty())
-        for (int k = 0; k < 3; ++k)
-          t.c[k] = std::max(0, t.c[k] - a[3 * gx + k]);
-      v = colourScore(t);
-    }
-    else
-    {
-      v = intensity(t);
-      if (!a.empty())
-        v -= intensity(Triple{{a[3 * gx], a[3 * gx + 1], a[3 * gx + 2]}});
-      v -= levelOf(gx, gy);
-    }
-    out[gx] = static_cast<int16_t>(std::min(32767, std::max(-32768, v)));
+    if (!a.empty())
+      for (int k = 0; k < 3; ++k)
+        t.c[k] = std::max(0, t.c[k] - a[3 * gx + k]);
+    out[gx] = static_cast<int16_t>(std::min(32767, std::max(-32768, colourScore(t))));
   }
+}
+
+// The intensity (1/16 DN) of every cell of row gy of m (the frame's format).
+void FramePlanes::intensityRow(const cv::Mat& m, int gy, int* out) const
+{
+  const int n = grid_cols_;
+  if (format_ == PixelFormat::kMono8)
+  {
+    const uint8_t* px = m.ptr<uint8_t>(gy);
+    for (int gx = 0; gx < n; ++gx)
+      out[gx] = 16 * px[gx];
+    return;
+  }
+  std::vector<int>& t = decoded_triples_;
+  t.resize(3 * static_cast<size_t>(n));
+  pixels::decodeRow(m, format_, gy, n, t.data());
+  for (int gx = 0; gx < n; ++gx)
+    out[gx] = pixels::intensity16(format_, &t[3 * static_cast<size_t>(gx)]);
 }
 
 void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
@@ -266,12 +294,17 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
     return;
   int16_t* s = row_scores_.data();
   scoreRow(gy, s);
-  for (int gx = 0; gx < grid_cols_; ++gx)
-  {
-    if (acc)
+  if (acc)
+    for (int gx = 0; gx < grid_cols_; ++gx)
       acc[gx] = static_cast<uint16_t>(acc[gx] + std::min(255, std::max(0, int(s[gx]))));
-    if (s[gx] >= thresholdOf(gx, gy))
-      rows::markCell(runs, gy, gx);
+  // The threshold of each block of the row (one for the colour path).
+  const int* block_thr = model_.colour ? nullptr : block_threshold_.ptr<int>(gy / kBlock);
+  for (int x0 = 0; x0 < grid_cols_; x0 += kBlock)
+  {
+    const int thr = block_thr ? block_thr[x0 / kBlock] : threshold_, x1 = std::min(grid_cols_, x0 + kBlock);
+    for (int gx = x0; gx < x1; ++gx)
+      if (s[gx] >= thr)
+        rows::markCell(runs, gy, gx);
   }
 }
 
@@ -326,27 +359,41 @@ void FramePlanes::buildIntensityMaps(const FastParams& p)
   const int bc = (grid_cols_ + kBlock - 1) / kBlock, br = (grid_rows_ + kBlock - 1) / kBlock;
   cv::Mat sum(br, bc, CV_64F, cv::Scalar(0)), count(br, bc, CV_64F, cv::Scalar(0));
   cv::Mat diff(br, bc, CV_64F, cv::Scalar(0)), diff_count(br, bc, CV_64F, cv::Scalar(0));
-  std::vector<int> c(3 * static_cast<size_t>(grid_cols_)), a, v(grid_cols_);
+  std::vector<int> v(static_cast<size_t>(grid_cols_)), a;
   for (int gy = 0; gy < grid_rows_; ++gy)
   {
-    pixels::decodeRow(image_, format_, gy, grid_cols_, c.data());
+    intensityRow(image_, gy, v.data());
     if (!ambient_.empty())
     {
-      a.resize(c.size());
-      pixels::decodeRow(ambient_, format_, gy, grid_cols_, a.data());
+      a.resize(v.size());
+      intensityRow(ambient_, gy, a.data());
+      for (int gx = 0; gx < grid_cols_; ++gx)
+        v[gx] -= a[gx];
     }
-    for (int gx = 0; gx < grid_cols_; ++gx)
+    // Integer sums per block (exact, as the doubles they are added to).
+    double* row_sum = sum.ptr<double>(gy / kBlock);
+    double* row_count = count.ptr<double>(gy / kBlock);
+    for (int x0 = 0, bx = 0; x0 < grid_cols_; x0 += kBlock, ++bx)
     {
-      v[gx] = pixels::intensity16(format_, &c[3 * gx]) - (a.empty() ? 0 : pixels::intensity16(format_, &a[3 * gx]));
-      sum.at<double>(gy / kBlock, gx / kBlock) += v[gx];
-      count.at<double>(gy / kBlock, gx / kBlock) += 1;
+      const int x1 = std::min(grid_cols_, x0 + kBlock);
+      int64_t block = 0;
+      for (int gx = x0; gx < x1; ++gx)
+        block += v[gx];
+      row_sum[bx] += static_cast<double>(block);
+      row_count[bx] += x1 - x0;
     }
     if (gy % (kBlock / 2) != kBlock / 4)
       continue;
-    for (int gx = 0; gx + 1 < grid_cols_; ++gx)
+    double* row_diff = diff.ptr<double>(gy / kBlock);
+    double* row_diff_count = diff_count.ptr<double>(gy / kBlock);
+    for (int x0 = 0, bx = 0; x0 + 1 < grid_cols_; x0 += kBlock, ++bx)
     {
-      diff.at<double>(gy / kBlock, gx / kBlock) += std::abs(v[gx + 1] - v[gx]);
-      diff_count.at<double>(gy / kBlock, gx / kBlock) += 1;
+      const int x1 = std::min(grid_cols_ - 1, x0 + kBlock);
+      int64_t block = 0;
+      for (int gx = x0; gx < x1; ++gx)
+        block += std::abs(v[gx + 1] - v[gx]);
+      row_diff[bx] += static_cast<double>(block);
+      row_diff_count[bx] += x1 - x0;
     }
   }
   cv::Mat mean(br, bc, CV_32S), noise(br, bc, CV_32S);

@@ -195,9 +195,12 @@ private:
   int matched_peak_ = 0;
   MatchedNoise matched_noise_;
   void buildMatchedScores(const FastParams& p, const MatchedNoise* fixed);
-  MatchedNoise sampledNoise(const cv::Mat& smooth) const;
+  MatchedNoise sampledNoise(const cv::Mat& smooth);
+  std::vector<float> noise_sample_, noise_scratch_;  // sampledNoise's buffers, kept from frame to frame
   std::vector<int16_t> row_scores_;
   mutable std::vector<int> decoded_, decoded_ambient_;  // scoreRow's scratch (one FramePlanes per thread)
+  mutable std::vector<int> decoded_triples_;            // intensityRow's
+  void intensityRow(const cv::Mat& m, int gy, int* out) const;
 };
 
 }  // namespace fast_detector

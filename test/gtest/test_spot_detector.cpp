@@ -1,12 +1,17 @@
 // SpotDetector core: accuracy against the truth of synthetic frames (both
 // methods; bounds on the fast one only, the baseline is the yardstick), the
 // study's row sort, parameter validation, pixel formats and bad input.
+#include <algorithm>
 #include <cmath>
+#include <limits>
+#include <random>
+#include <vector>
 #include <cstdio>
 #include <iostream>
 
 #include <gtest/gtest.h>
 
+#include "structured_light_stabilizer/detail/math.h"
 #include "structured_light_stabilizer/spot_detector.h"
 #include "support/spot_score.h"
 #include "support/synthetic_dots.h"
@@ -357,4 +362,62 @@ TEST(SpotDetector, DebugImageMarksSpots)
       EXPECT_NE(a, f.image.at<cv::Vec3b>(y, x));
     }
   }
+}
+
+// The matched filter's noise (median and MAD of 65536 cells per frame) by
+// detail::medianOfMany: the same element as nth_element's median on noise
+// with dot-like outliers, ties, sorted and reversed runs, heavy tails, sizes
+// at and around its threshold, a stride pattern that hides the median from
+// its sample (the fallback) and NaN (the fallback: the same as medianInPlace).
+TEST(MedianOfMany, TheSameElementAsNthElement)
+{
+  std::mt19937 rng(17);
+  std::normal_distribution<float> noise(3.0f, 2.5f);
+  std::cauchy_distribution<double> cauchy(0.0, 1.0);
+  int cases = 0;
+  for (size_t n : {1000u, 16383u, 16384u, 65536u, 100001u})
+    for (int kind = 0; kind < 7; ++kind)
+    {
+      std::vector<float> v(n);
+      for (size_t i = 0; i < n; ++i)
+      {
+        switch (kind)
+        {
+          case 0:  // noise and dots
+            v[i] = rng() % 100 == 0 ? 200.0f + static_cast<float>(rng() % 3000) : noise(rng);
+            break;
+          case 1:  // ties: integer scores
+            v[i] = static_cast<float>(rng() % 7);
+            break;
+          case 2:
+            v[i] = static_cast<float>(i);
+            break;
+          case 3:
+            v[i] = -static_cast<float>(i) * 0.5f;
+            break;
+          case 4:
+            v[i] = static_cast<float>(cauchy(rng));
+            break;
+          case 5:  // the evenly spaced sample sees only the large values
+            v[i] = i % (n / 4096 ? n / 4096 : 1) == 0 ? 1e6f : noise(rng);
+            break;
+          default:  // all equal
+            v[i] = 2.5f;
+        }
+      }
+      std::vector<float> expected = v, scratch;
+      const float want = detail::medianInPlace(expected.begin(), expected.end());
+      std::vector<float> copy = v;
+      EXPECT_EQ(detail::medianOfMany(&copy, &scratch), want) << "n " << n << " kind " << kind;
+      ++cases;
+    }
+  EXPECT_EQ(cases, 35);
+  std::vector<double> with_nan(70000);
+  for (size_t i = 0; i < with_nan.size(); ++i)
+    with_nan[i] = static_cast<double>(noise(rng));
+  with_nan[12345] = std::numeric_limits<double>::quiet_NaN();
+  std::vector<double> expected = with_nan, scratch;
+  const double want = detail::medianInPlace(expected.begin(), expected.end());
+  const double got = detail::medianOfMany(&with_nan, &scratch);
+  EXPECT_TRUE(got == want || (std::isnan(got) && std::isnan(want)));
 }

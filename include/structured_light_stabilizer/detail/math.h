@@ -4,8 +4,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <iterator>
 #include <limits>
+#include <type_traits>
 #include <vector>
 
 namespace structured_light_stabilizer
@@ -36,6 +38,52 @@ typename std::iterator_traits<RandomIt>::value_type medianInPlace(RandomIt first
   const RandomIt mid = first + (last - first) / 2;
   std::nth_element(first, mid, last);
   return *mid;
+}
+
+// The same element as medianInPlace for a large vector, by bracketing it
+// first (Floyd and Rivest's selection): the values of an evenly spaced
+// sample of 4096 at ranks k_s -/+ 128 around the median's rank k_s in the
+// sample bound the median with high probability (a rank in a sample of 4096
+// is off by 32 values RMS); one pass counts the values below the lower bound
+// and copies those between the bounds (about 6 % of them) to scratch, and
+// nth_element runs on those alone. A median that falls outside the bounds
+// (or values that do not compare, as NaN) falls back to nth_element on all
+// of v. Linear, branch-free passes instead of nth_element's partitions,
+// whose branches mispredict on noise. v is not reordered unless it falls
+// back; scratch is kept by the caller to spare an allocation. Fewer than
+// 16384 values: medianInPlace on v.
+template <typename T>
+T medianOfMany(std::vector<T>* v, std::vector<T>* scratch)
+{
+  constexpr size_t kSample = 4096, kMargin = 128;
+  const size_t n = v->size();
+  if (n < 4 * kSample)
+    return medianInPlace(v->begin(), v->end());
+  const size_t k = n / 2;
+  const T* x = v->data();
+  scratch->resize(n);
+  T* s = scratch->data();
+  for (size_t i = 0; i < kSample; ++i)
+    s[i] = x[i * n / kSample];
+  const size_t ks = kSample / 2;
+  std::nth_element(s, s + ks - kMargin, s + kSample);
+  const T lo = s[ks - kMargin];
+  std::nth_element(s + ks - kMargin + 1, s + ks + kMargin, s + kSample);
+  const T hi = s[ks + kMargin];
+  size_t below = 0, m = 0, outside = 0;
+  for (size_t i = 0; i < n; ++i)
+  {
+    const T value = x[i];
+    const bool low = value<lo, high = value> hi;
+    below += low;
+    outside += !low && !high && !(value >= lo && value <= hi);  // NaN
+    s[m] = value;
+    m += !low && !high;
+  }
+  if (outside || k < below || k >= below + m)
+    return medianInPlace(v->begin(), v->end());
+  std::nth_element(s, s + (k - below), s + m);
+  return s[k - below];
 }
 
 // Upper median of a copy of v (see medianInPlace); 0 when empty.
