@@ -183,17 +183,49 @@ void fillMono(const cv::Mat& m, int saturation, double scale, int cx, int cy, Pl
   }
 }
 
-// The fast path for Bayer mosaics, colour path: the clipped raw samples of
-// the window and its one-pixel border marked once, each pixel's planes from
-// its own and its neighbours' samples.
+// Channel ch at the window's raw sample p (a row of the window is n samples):
+// pixels::bayerChannel on the window's copy of the mosaic, whose border
+// samples are the frame's reflected ones, as bayerChannel reads them.
+inline int windowChannel(const int* p, int n, PixelFormat format, int x, int y, int ch)
+{
+  const int own = pixels::bayerColour(format, x, y);
+  if (own == ch)
+    return p[0];
+  if (ch == kGreen)  // at a red or blue site: the four direct neighbours are green
+    return (p[-1] + p[1] + p[-n] + p[n] + 2) >> 2;
+  if (own == kGreen)  // red/blue at a green site: the pair left/right or above/below
+    return pixels::bayerColour(format, x + 1, y) == ch ? (p[-1] + p[1] + 1) >> 1 : (p[-n] + p[n] + 1) >> 1;
+  return (p[-n - 1] + p[-n + 1] + p[n - 1] + p[n + 1] + 2) >> 2;  // the four diagonal neighbours
+}
+
+// The fast path for Bayer mosaics, colour path: the window's raw samples and
+// their one-pixel border read once (reflected at the frame's edges) and their
+// clipping marked, each pixel's planes from its own and its neighbours'
+// samples in that copy (the values of pixels::bayerChannel).
 void fillBayer(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
                PlaneWindow* w, float* s, float* r, float* t, bool ambient)
 {
   const int H = w->H, n = 2 * H + 3;
-  bool raw_clipped[(2 * PlaneWindow::kMaxRadius + 3) * (2 * PlaneWindow::kMaxRadius + 3)];
+  constexpr int kN = 2 * PlaneWindow::kMaxRadius + 3;
+  int raw[kN * kN];
+  bool raw_clipped[kN * kN];
+  const int x0 = cx - H - 1, y0 = cy - H - 1;
+  const bool inside = x0 >= 0 && y0 >= 0 && x0 + n <= m.cols && y0 + n <= m.rows;
   for (int y = 0; y < n; ++y)
+  {
+    int* row = raw + y * n;
+    if (inside)
+    {
+      const uint8_t* src = m.ptr<uint8_t>(y0 + y) + x0;
+      for (int x = 0; x < n; ++x)
+        row[x] = src[x];
+    }
+    else
+      for (int x = 0; x < n; ++x)
+        row[x] = pixels::bayerRaw(m, x0 + x, y0 + y);
     for (int x = 0; x < n; ++x)
-      raw_clipped[y * n + x] = pixels::bayerRaw(m, cx - H - 1 + x, cy - H - 1 + y) >= saturation;
+      raw_clipped[y * n + x] = row[x] >= saturation;
+  }
   for (int dy = -H; dy <= H; ++dy)
     for (int dx = -H; dx <= H; ++dx)
     {
@@ -202,9 +234,10 @@ void fillBayer(const cv::Mat& m, PixelFormat format, const ColourModel& model, i
       for (int ey = 0; ey < 3 && !clipped; ++ey)
         for (int ex = 0; ex < 3; ++ex)
           clipped = clipped || raw_clipped[(dy + H + ey) * n + dx + H + ex];
-      s[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.signal));
-      r[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.reference));
-      t[i] = static_cast<float>(pixels::bayerChannel(m, format, x, y, model.third));
+      const int* p = raw + (dy + H + 1) * n + dx + H + 1;
+      s[i] = static_cast<float>(windowChannel(p, n, format, x, y, model.signal));
+      r[i] = static_cast<float>(windowChannel(p, n, format, x, y, model.reference));
+      t[i] = static_cast<float>(windowChannel(p, n, format, x, y, model.third));
       const bool sample = pixels::bayerColour(format, x, y) == model.signal;
       if (ambient)
         w->flags[i] |= clipped ? PlaneWindow::kClipped : 0;
