@@ -162,6 +162,33 @@ void fillInterleaved(const cv::Mat& m, PixelFormat format, const ColourModel& mo
   }
 }
 
+// The fast path for interleaved 16-bit colour frames (bgr16, rgb16): the
+// planes in DN at full depth straight from the rows (fillPixel's values).
+void fillInterleaved16(const cv::Mat& m, PixelFormat format, const ColourModel& model, int saturation, int cx, int cy,
+                       PlaneWindow* w, float* s, float* r, float* t, bool ambient)
+{
+  const pixels::Interleaved L = pixels::interleavedLayout(format);
+  const int offset[3] = {L.r, L.g, L.b};
+  const int so = offset[model.signal], ro = offset[model.reference], to = offset[model.third];
+  const int H = w->H, saturation16 = 257 * saturation;
+  for (int dy = -H; dy <= H; ++dy)
+  {
+    const uint16_t* px = m.ptr<uint16_t>(cy + dy) + (cx - H) * L.bytes;
+    const int row = w->index(-H, dy);
+    for (int k = 0; k <= 2 * H; ++k, px += L.bytes)
+    {
+      s[row + k] = px[so] / 257.0f;
+      r[row + k] = px[ro] / 257.0f;
+      t[row + k] = px[to] / 257.0f;
+      const bool clipped = px[0] >= saturation16 || px[1] >= saturation16 || px[2] >= saturation16;
+      if (ambient)
+        w->flags[row + k] |= clipped ? PlaneWindow::kClipped : 0;
+      else
+        w->flags[row + k] = static_cast<uint8_t>(PlaneWindow::kSample | (clipped ? PlaneWindow::kClipped : 0));
+    }
+  }
+}
+
 // The fast path for mono frames: the one plane, straight from the rows.
 template <typename T>
 void fillMono(const cv::Mat& m, int saturation, double scale, int cx, int cy, PlaneWindow* w, float* s, bool ambient)
@@ -303,6 +330,14 @@ void FramePlanes::fillWindow(int cx, int cy, int H, PlaneWindow* w) const
       fillInterleaved(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
                       w->ambient_third, true);
     fillFineAmbient(w);
+    return;
+  }
+  if (model_.colour && (format_ == PixelFormat::kBgr16 || format_ == PixelFormat::kRgb16))
+  {
+    fillInterleaved16(image_, format_, model_, saturation_, cx, cy, w, w->signal, w->reference, w->third, false);
+    if (w->ambient)
+      fillInterleaved16(ambient_, format_, model_, saturation_, cx, cy, w, w->ambient_signal, w->ambient_reference,
+                        w->ambient_third, true);
     return;
   }
   if (model_.colour && isBayer(format_))
