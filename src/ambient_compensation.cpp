@@ -287,6 +287,11 @@ void warpRegion(const cv::Mat& src, const cv::Matx33d& M, const cv::Size& size, 
 void sampleReplicated(const cv::Mat& src, double sx, double sy, float* v)
 {
   const int cn = src.channels();
+  if (!(std::isfinite(sx) && std::isfinite(sy)))  // compensateAmbient passes finite maps only
+  {
+    std::fill(v, v + cn, 0.0f);
+    return;
+  }
   const double fx0 = std::floor(sx), fy0 = std::floor(sy);
   const float fx = static_cast<float>(sx - fx0), fy = static_cast<float>(sy - fy0);
   const auto clampTo = [](double q, int hi) { return static_cast<int>(std::min(std::max(q, 0.0), double(hi))); };
@@ -572,8 +577,17 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
   }
   // Weights: a blend inside the interval; outside it the nearer frame alone.
   const double wb = std::min(std::max(w, 0.0), 1.0);
-  const cv::Matx33d Ha = have_motion ? homographyPower(out.motion_ab, w) : cv::Matx33d::eye();
-  const cv::Matx33d Hb = have_motion ? homographyPower(out.motion_ab, w - 1.0) : cv::Matx33d::eye();
+  cv::Matx33d Ha = have_motion ? homographyPower(out.motion_ab, w) : cv::Matx33d::eye();
+  cv::Matx33d Hb = have_motion ? homographyPower(out.motion_ab, w - 1.0) : cv::Matx33d::eye();
+  // A motion that is not finite (a hint with NaN, a power that failed) is no
+  // motion: the frames are blended by time.
+  const bool bad_motion = have_motion && !(cv::checkRange(cv::Mat(out.motion_ab)) && cv::checkRange(cv::Mat(Ha)) &&
+                                           cv::checkRange(cv::Mat(Hb)));
+  if (bad_motion)
+  {
+    have_motion = false;
+    Ha = Hb = cv::Matx33d::eye();
+  }
   // An earlier call's buffer that only the cache holds (its pixels are all
   // written over where this estimate is defined).
   int slot = -1;
@@ -598,8 +612,10 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
                      static_cast<double>(out.points_used)) +
                  fmt(", %.3f px RMS)", out.residual_px);
   else
-    out.status = fmt("blended by time at fraction %.2f", w) +
-                 (p.motion == AmbientMotion::kHomography ? " (too little texture to track)" : "");
+    out.status = fmt("blended by time at fraction %.2f", w) + (bad_motion ? " (the motion is not finite)"
+                                                               : p.motion == AmbientMotion::kHomography
+                                                                   ? " (too little texture to track)"
+                                                                   : "");
   return out;
 }
 

@@ -412,6 +412,19 @@ TEST(AmbientCompensation, OneFrameOrFramesTooFarOrBadInput)
   bayer.layout = AmbientLayout::kBayerRggb;
   e = compensateAmbient(1.0, {img, 0.97}, {img, 1.03}, bayer);
   EXPECT_FALSE(e.valid);  // a mosaic has one channel
+  // A motion hint that is not finite: blended by time, said so, for every output kind.
+  for (bool unrounded : {false, true})
+  {
+    const cv::Matx33d nan_hint(1, 0, std::nan(""), 0, 1, 0, 0, 0, 1);
+    AmbientCompensationParams p;
+    p.unrounded = unrounded;
+    e = compensateAmbient(1.0, {img, 0.96}, {img, 1.02}, p, &nan_hint);
+    EXPECT_TRUE(e.valid);
+    EXPECT_NE(e.status.find("not finite"), std::string::npos) << e.status;
+    EXPECT_LT(cv::norm(e.image, unrounded ? cv::Mat(img.size(), CV_32FC3, cv::Scalar(10, 20, 30)) : cv::Mat(img),
+                       cv::NORM_INF),
+              1e-4);
+  }
   // Two flat frames: nothing to track, blended by time.
   e = compensateAmbient(1.0, {img, 0.96}, {img, 1.02});
   EXPECT_TRUE(e.valid);
