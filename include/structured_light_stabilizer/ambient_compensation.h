@@ -63,7 +63,7 @@ struct AmbientCompensationParams
   // estimate's error to the true ambient moved by at most 0.001 DN
   // (test_ambient_compensation) for 0.44 x the tracking's cost.
   // Two pyramid levels above the (binned) base follow a motion of about 40
-  // tracking pixels (80 px of a binned frame) between the two frames; with
+  // tracking pixels (80 px of the frame when binned) between the two; with
   // three the estimate's error moved by at most 7e-5 DN (the same tests) for
   // 1.27 x the tracking's cost.
   int grid = 16;
