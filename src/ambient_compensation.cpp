@@ -452,9 +452,9 @@ void warpBlendInto(const cv::Mat& a, const cv::Matx33d& Ma, float wa, const cv::
 void warpAndBlend(const cv::Mat& a, const cv::Mat& b, bool have_motion, const cv::Matx33d& Ha, const cv::Matx33d& Hb,
                   double wb, const AmbientCompensationParams& p, cv::Mat* warped, cv::Mat* out)
 {
-  // Unrounded: warped and blended in float, in one pass (8-bit frames; when
-  // each warp was rounded to 8 bits first, warping float copies measured
-  // 0.0948 px against 0.0968 px on the strobed bag's scene).
+  // Unrounded: the blend in float. (When each warp was rounded to 8 bits
+  // first, warping float copies measured 0.0948 px against 0.0968 px on the
+  // strobed bag's scene.)
   const int depth = p.unrounded && a.depth() == CV_8U && !bayer(p.layout) ? CV_32F : a.depth();
   if (bayer(p.layout))
   {

@@ -108,7 +108,7 @@ MatchedNoise FramePlanes::sampledNoise(const cv::Mat& smooth)
     for (int gx = 0; gx < grid_cols_; gx += 4)
       sample.push_back(row[gx]);
   }
-  // The medians of 65536 cells by histogram: the same values as nth_element's.
+  // The medians of 65536 cells by bracketing (medianOfMany): the same values as nth_element's.
   const float centre = detail::medianOfMany(&sample, &noise_scratch_);
   for (float& v : sample)
     v = std::abs(v - centre);
