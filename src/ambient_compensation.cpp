@@ -5,6 +5,7 @@
 #include "structured_light_stabilizer/ambient_compensation.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -247,33 +248,58 @@ bool affineInverse(const cv::Matx33d& M, const cv::Size& size, cv::Matx23d* A)
 // perspective: the affine map's deviation falls with the square of the size.
 constexpr int kMinAffineSide = 16;
 
-// src warped by the homography M into dst (dst's size, allocated): affine
-// where that is within kAffineTolerancePx (about half the cost); else the
-// region is halved along its longer side, each half with its own tangent map
-// (its homography is the region's shifted to its origin), down to
-// kMinAffineSide, below which it is warped in perspective.
-void warpInto(const cv::Mat& src, const cv::Matx33d& M, cv::Mat dst)
+// dst tiled for warping by the homographies M (region pixels from source
+// pixels, one per frame): where every map is affine within
+// kAffineTolerancePx over the tile (about half the cost of a perspective
+// warp), affine_leaf(A, tile) with the tangent maps A; else the tile is halved
+// along its longer side, each half with its own maps (the tile's shifted to
+// its origin), down to kMinAffineSide, below which perspective_leaf(M, tile).
+template <std::size_t N, typename AffineLeaf, typename PerspectiveLeaf>
+void forEachWarpTile(const std::array<cv::Matx33d, N>& M, cv::Mat dst, const AffineLeaf& affine_leaf,
+                     const PerspectiveLeaf& perspective_leaf)
 {
   const cv::Size size = dst.size();
-  cv::Matx23d A;
-  if (affineInverse(M, size, &A))
+  std::array<cv::Matx23d, N> A;
+  bool affine = true;
+  for (std::size_t i = 0; i < N && affine; ++i)
+    affine = affineInverse(M[i], size, &A[i]);
+  if (affine)
   {
-    cv::warpAffine(src, dst, cv::Mat(A), size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+    affine_leaf(A, dst);
     return;
   }
   const bool split_x = size.width >= size.height;
   const int side = split_x ? size.width : size.height;
   if (side < 2 * kMinAffineSide)
   {
-    cv::warpPerspective(src, dst, cv::Mat(M), size, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    perspective_leaf(M, dst);
     return;
   }
   const int half = side / 2;
   const cv::Rect first = split_x ? cv::Rect(0, 0, half, size.height) : cv::Rect(0, 0, size.width, half);
   const cv::Rect second =
       split_x ? cv::Rect(half, 0, size.width - half, size.height) : cv::Rect(0, half, size.width, size.height - half);
-  warpInto(src, M, dst(first));
-  warpInto(src, cv::Matx33d(1, 0, -second.x, 0, 1, -second.y, 0, 0, 1) * M, dst(second));
+  forEachWarpTile(M, dst(first), affine_leaf, perspective_leaf);
+  const cv::Matx33d shift(1, 0, -second.x, 0, 1, -second.y, 0, 0, 1);
+  std::array<cv::Matx33d, N> shifted;
+  for (std::size_t i = 0; i < N; ++i)
+    shifted[i] = shift * M[i];
+  forEachWarpTile(shifted, dst(second), affine_leaf, perspective_leaf);
+}
+
+// src warped by the homography M into dst (dst's size, allocated), tiled by
+// forEachWarpTile.
+void warpInto(const cv::Mat& src, const cv::Matx33d& M, cv::Mat dst)
+{
+  forEachWarpTile(
+      std::array<cv::Matx33d, 1>{M}, dst,
+      [&src](const std::array<cv::Matx23d, 1>& A, cv::Mat tile)
+      {
+        cv::warpAffine(src, tile, cv::Mat(A[0]), tile.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                       cv::BORDER_REPLICATE);
+      },
+      [&src](const std::array<cv::Matx33d, 1>& T, cv::Mat tile)
+      { cv::warpPerspective(src, tile, cv::Mat(T[0]), tile.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE); });
 }
 
 void warpRegion(const cv::Mat& src, const cv::Matx33d& M, const cv::Size& size, cv::Mat* dst)
@@ -412,34 +438,23 @@ void accumulateProjective(const cv::Mat& src, const cv::Matx33d& M, float weight
 }
 
 // An 8-bit frame pair warped and blended in float into dst (CV_32FC(cn)):
-// dst = wa a(Ma^-1 x) + wb b(Mb^-1 x), tiled as warpInto tiles (each tile
-// affine within kAffineTolerancePx for both frames, else halved).
+// dst = wa a(Ma^-1 x) + wb b(Mb^-1 x), tiled by forEachWarpTile for both
+// frames at once.
 void warpBlendInto(const cv::Mat& a, const cv::Matx33d& Ma, float wa, const cv::Mat& b, const cv::Matx33d& Mb, float wb,
                    cv::Mat dst)
 {
-  const cv::Size size = dst.size();
-  cv::Matx23d Aa, Ab;
-  if (affineInverse(Ma, size, &Aa) && affineInverse(Mb, size, &Ab))
-  {
-    accumulateBilinear(a, Aa, wa, true, dst);
-    accumulateBilinear(b, Ab, wb, false, dst);
-    return;
-  }
-  const bool split_x = size.width >= size.height;
-  const int side = split_x ? size.width : size.height;
-  if (side < 2 * kMinAffineSide)
-  {
-    accumulateProjective(a, Ma, wa, true, dst);
-    accumulateProjective(b, Mb, wb, false, dst);
-    return;
-  }
-  const int half = side / 2;
-  const cv::Rect first = split_x ? cv::Rect(0, 0, half, size.height) : cv::Rect(0, 0, size.width, half);
-  const cv::Rect second =
-      split_x ? cv::Rect(half, 0, size.width - half, size.height) : cv::Rect(0, half, size.width, size.height - half);
-  warpBlendInto(a, Ma, wa, b, Mb, wb, dst(first));
-  const cv::Matx33d shift(1, 0, -second.x, 0, 1, -second.y, 0, 0, 1);
-  warpBlendInto(a, shift * Ma, wa, b, shift * Mb, wb, dst(second));
+  forEachWarpTile(
+      std::array<cv::Matx33d, 2>{Ma, Mb}, dst,
+      [&](const std::array<cv::Matx23d, 2>& A, cv::Mat tile)
+      {
+        accumulateBilinear(a, A[0], wa, true, tile);
+        accumulateBilinear(b, A[1], wb, false, tile);
+      },
+      [&](const std::array<cv::Matx33d, 2>& T, cv::Mat tile)
+      {
+        accumulateProjective(a, T[0], wa, true, tile);
+        accumulateProjective(b, T[1], wb, false, tile);
+      });
 }
 
 // The frames warped along their fractions of the motion (have_motion) and
