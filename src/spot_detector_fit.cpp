@@ -286,9 +286,17 @@ bool solve4(const cv::Matx44d& A, const cv::Vec4d& b, cv::Vec4d* x)
   return true;
 }
 
-// Levenberg-Marquardt on (a, x, y, s) from m (whose amplitude is set).
+// Levenberg-Marquardt on (a, x, y, s) from m (whose amplitude is set); the
+// sum of squares at the last model evaluated. Its steps shrink about
+// twentyfold from one to the next near the minimum (0.3, 0.02, 0.001 px on
+// the benchmark's clipped dots), so a step below kSmallStepPx is taken
+// without evaluating the model there (which cost as much as the step) and
+// ends the iterations. Against iterating down to 2e-4 px this moved the
+// benchmark's clipped dots by at most 0.0012 px, and the spots of 45
+// simulator frames of twelve input kinds by at most 0.006 px.
 double levenbergMarquardt(const Samples& samples, Model* model)
 {
+  constexpr double kSmallStepPx = 2e-3, kSmallSigmaStepPx = 5e-3;
   Model& m = *model;
   double lambda = 1e-3;
   cv::Matx44d JtJ;
@@ -303,6 +311,12 @@ double levenbergMarquardt(const Samples& samples, Model* model)
     if (!solve4(A, Jtr, &step))
       break;
     const Model trial{m.a + step[0], m.x + step[1], m.y + step[2], m.s + step[3]};
+    if (std::hypot(step[1], step[2]) < kSmallStepPx && std::abs(step[3]) < kSmallSigmaStepPx && trial.s > 0.3 &&
+        trial.a > 0)
+    {
+      m = trial;
+      break;
+    }
     cv::Matx44d JtJ2;
     cv::Vec4d Jtr2;
     const double ss2 = trial.s > 0.3 && trial.a > 0 ? normalEquations(samples, trial, &JtJ2, &Jtr2) : detail::kInf;
@@ -313,9 +327,6 @@ double levenbergMarquardt(const Samples& samples, Model* model)
       JtJ = JtJ2;
       Jtr = Jtr2;
       lambda = std::max(1e-6, lambda * 0.3);
-      // Far below the noise of a centroid (a few thousandths of a pixel).
-      if (std::hypot(step[1], step[2]) < 2e-4 && std::abs(step[3]) < 1e-3)
-        break;
     }
     else if ((lambda *= 10.0) > 1e6)
     {
