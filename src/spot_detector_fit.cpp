@@ -297,6 +297,10 @@ bool solve4(const cv::Matx44d& A, const cv::Vec4d& b, cv::Vec4d* x)
 double levenbergMarquardt(const Samples& samples, Model* model)
 {
   constexpr double kSmallStepPx = 2e-3, kSmallSigmaStepPx = 5e-3;
+  // Only a Gauss-Newton step (damping at most the start's) is small because
+  // the fit has converged; after a rejected step it can be small because the
+  // damping grew.
+  constexpr double kGaussNewtonLambda = 1e-3;
   Model& m = *model;
   double lambda = 1e-3;
   cv::Matx44d JtJ;
@@ -311,8 +315,8 @@ double levenbergMarquardt(const Samples& samples, Model* model)
     if (!solve4(A, Jtr, &step))
       break;
     const Model trial{m.a + step[0], m.x + step[1], m.y + step[2], m.s + step[3]};
-    if (std::hypot(step[1], step[2]) < kSmallStepPx && std::abs(step[3]) < kSmallSigmaStepPx && trial.s > 0.3 &&
-        trial.a > 0)
+    if (lambda <= kGaussNewtonLambda && std::hypot(step[1], step[2]) < kSmallStepPx &&
+        std::abs(step[3]) < kSmallSigmaStepPx && trial.s > 0.3 && trial.a > 0)
     {
       m = trial;
       break;
