@@ -315,15 +315,16 @@ double levenbergMarquardt(const Samples& samples, Model* model)
     if (!solve4(A, Jtr, &step))
       break;
     const Model trial{m.a + step[0], m.x + step[1], m.y + step[2], m.s + step[3]};
-    if (lambda <= kGaussNewtonLambda && std::hypot(step[1], step[2]) < kSmallStepPx &&
-        std::abs(step[3]) < kSmallSigmaStepPx && trial.s > 0.3 && trial.a > 0)
+    const bool admissible = trial.s > 0.3 && trial.a > 0;
+    if (admissible && lambda <= kGaussNewtonLambda && std::hypot(step[1], step[2]) < kSmallStepPx &&
+        std::abs(step[3]) < kSmallSigmaStepPx)
     {
       m = trial;
       break;
     }
     cv::Matx44d JtJ2;
     cv::Vec4d Jtr2;
-    const double ss2 = trial.s > 0.3 && trial.a > 0 ? normalEquations(samples, trial, &JtJ2, &Jtr2) : detail::kInf;
+    const double ss2 = admissible ? normalEquations(samples, trial, &JtJ2, &Jtr2) : detail::kInf;
     if (ss2 <= ss)
     {
       m = trial;
