@@ -8,6 +8,7 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -538,8 +539,8 @@ cv::Matx33d homographyPower(const cv::Matx33d& H, double w)
     for (int c = 0; c < 3; ++c)
       M(r, c) = H(r, c);
   const double det = M.determinant();
-  if (!(det > 0.0))
-    return cv::Matx33d::eye();
+  if (!(det > 0.0))  // singular or a reflection: no motion has it, and no real power
+    return cv::Matx33d::all(std::numeric_limits<double>::quiet_NaN());
   M /= std::cbrt(det);
   const Eigen::Matrix3d P = (w * M.log()).exp();
   cv::Matx33d out;
@@ -594,8 +595,8 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
   const double wb = std::min(std::max(w, 0.0), 1.0);
   cv::Matx33d Ha = have_motion ? homographyPower(out.motion_ab, w) : cv::Matx33d::eye();
   cv::Matx33d Hb = have_motion ? homographyPower(out.motion_ab, w - 1.0) : cv::Matx33d::eye();
-  // A motion that is not finite (a hint with NaN, a power that failed) is no
-  // motion: the frames are blended by time.
+  // A motion that is not finite (a hint with NaN, a power that failed: a
+  // hint that is singular or mirrors) is no motion: the frames are blended by time.
   const bool bad_motion = have_motion && !(cv::checkRange(cv::Mat(out.motion_ab)) && cv::checkRange(cv::Mat(Ha)) &&
                                            cv::checkRange(cv::Mat(Hb)));
   if (bad_motion)
@@ -627,10 +628,10 @@ AmbientEstimate compensateAmbient(double t, const AmbientFrame& a, const Ambient
                      static_cast<double>(out.points_used)) +
                  fmt(", %.3f px RMS)", out.residual_px);
   else
-    out.status = fmt("blended by time at fraction %.2f", w) + (bad_motion ? " (the motion is not finite)"
-                                                               : p.motion == AmbientMotion::kHomography
-                                                                   ? " (too little texture to track)"
-                                                                   : "");
+    out.status = fmt("blended by time at fraction %.2f", w) +
+                 (bad_motion                               ? " (the motion is not finite or not a motion)"
+                  : p.motion == AmbientMotion::kHomography ? " (too little texture to track)"
+                                                           : "");
   return out;
 }
 

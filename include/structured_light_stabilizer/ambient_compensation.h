@@ -143,7 +143,8 @@ AmbientEstimate compensateAmbient(double on_stamp_s, const AmbientFrame& a, cons
                                   const cv::Matx33d* motion_hint = nullptr, AmbientTrackingCache* cache = nullptr);
 
 // H^w for a homography near the identity (matrix logarithm and exponential,
-// normalised to det 1): the motion over a fraction w of the interval.
+// normalised to det 1): the motion over a fraction w of the interval. All NaN
+// when H is no motion (det H <= 0 or not finite: singular, or a reflection).
 cv::Matx33d homographyPower(const cv::Matx33d& H, double w);
 
 // The homography from the rig's motion over the interval and the rock's

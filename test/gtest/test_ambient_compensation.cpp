@@ -390,6 +390,10 @@ TEST(AmbientCompensation, HomographyPowerComposes)
       EXPECT_NEAR(full(r, c) / full(2, 2), H(r, c) / H(2, 2), 1e-9);
   const cv::Matx33d id = homographyPower(H, 0.0);
   EXPECT_NEAR(cv::norm(id - cv::Matx33d::eye()), 0.0, 1e-12);
+  // No motion mirrors the image or collapses it: no power of such a matrix is returned as one.
+  for (const cv::Matx33d& bad : {cv::Matx33d(-1, 0, 0, 0, 1, 0, 0, 0, 1), cv::Matx33d(1, 0, 0, 0, 0, 0, 0, 0, 1),
+                                 cv::Matx33d(1, 0, std::nan(""), 0, 1, 0, 0, 0, 1)})
+    EXPECT_FALSE(cv::checkRange(cv::Mat(homographyPower(bad, 0.5)))) << cv::Mat(bad);
 }
 
 TEST(AmbientCompensation, OneFrameOrFramesTooFarOrBadInput)
@@ -412,19 +416,20 @@ TEST(AmbientCompensation, OneFrameOrFramesTooFarOrBadInput)
   bayer.layout = AmbientLayout::kBayerRggb;
   e = compensateAmbient(1.0, {img, 0.97}, {img, 1.03}, bayer);
   EXPECT_FALSE(e.valid);  // a mosaic has one channel
-  // A motion hint that is not finite: blended by time, said so, for every output kind.
+  // A motion hint that is not finite, or mirrors the image: blended by time, said so, for every output kind.
   for (bool unrounded : {false, true})
-  {
-    const cv::Matx33d nan_hint(1, 0, std::nan(""), 0, 1, 0, 0, 0, 1);
-    AmbientCompensationParams p;
-    p.unrounded = unrounded;
-    e = compensateAmbient(1.0, {img, 0.96}, {img, 1.02}, p, &nan_hint);
-    EXPECT_TRUE(e.valid);
-    EXPECT_NE(e.status.find("not finite"), std::string::npos) << e.status;
-    EXPECT_LT(cv::norm(e.image, unrounded ? cv::Mat(img.size(), CV_32FC3, cv::Scalar(10, 20, 30)) : cv::Mat(img),
-                       cv::NORM_INF),
-              1e-4);
-  }
+    for (const cv::Matx33d& bad_hint :
+         {cv::Matx33d(1, 0, std::nan(""), 0, 1, 0, 0, 0, 1), cv::Matx33d(-1, 0, 63, 0, 1, 0, 0, 0, 1)})
+    {
+      AmbientCompensationParams p;
+      p.unrounded = unrounded;
+      e = compensateAmbient(1.0, {img, 0.96}, {img, 1.02}, p, &bad_hint);
+      EXPECT_TRUE(e.valid);
+      EXPECT_NE(e.status.find("not finite or not a motion"), std::string::npos) << e.status;
+      EXPECT_LT(cv::norm(e.image, unrounded ? cv::Mat(img.size(), CV_32FC3, cv::Scalar(10, 20, 30)) : cv::Mat(img),
+                         cv::NORM_INF),
+                1e-4);
+    }
   // Two flat frames: nothing to track, blended by time.
   e = compensateAmbient(1.0, {img, 0.96}, {img, 1.02});
   EXPECT_TRUE(e.valid);
