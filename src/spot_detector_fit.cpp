@@ -80,20 +80,26 @@ void usableSamples(const WeightWindow& w, double x, double y, double radius, Sam
     const int r = dy + w.H;
     s->first_run[r] = static_cast<int>(s->runs.size());
     // The disk's columns on this row, one more each side for the rounding
-    // of the root (the exact test below decides).
+    // of the root (the exact test trims them).
     const double ey2 = detail::square(w.cy + dy - y), h2 = r2 - ey2;
     if (h2 < 0.0)
       continue;  // c0 = c1 = 0 from the assign above
     const double h = std::sqrt(h2), ox = x - w.cx;
-    const int from = std::max(-w.H, static_cast<int>(std::floor(ox - h)) - 1);
-    const int to = std::min(w.H, static_cast<int>(std::ceil(ox + h)) + 1);
+    int from = std::max(-w.H, static_cast<int>(std::floor(ox - h)) - 1);
+    int to = std::min(w.H, static_cast<int>(std::ceil(ox + h)) + 1);
+    // The disk's columns are contiguous: the exact test at its ends only.
+    auto inside = [&](int dx) { return detail::square(w.cx + dx - x) + ey2 <= r2; };
+    while (from <= to && !inside(from))
+      ++from;
+    while (to >= from && !inside(to))
+      --to;
     const uint8_t* usable = w.usable + r * w.stride + w.H;
     const float* vals = w.vals + r * w.stride + w.H;
     double* uv = s->uv.data() + r * s->stride + w.H;
     int first = s->stride, last = -1, run_begin = -1;
     for (int dx = from; dx <= to + 1; ++dx)
     {
-      const bool used = dx <= to && usable[dx] && detail::square(w.cx + dx - x) + ey2 <= r2;
+      const bool used = dx <= to && usable[dx];
       if (used)
       {
         uv[dx] = vals[dx];
@@ -345,64 +351,98 @@ double levenbergMarquardt(const Samples& samples, Model* model)
 // The clipped plateau nearest to (x, y) in the window: its centroid and its
 // half width across the columns (blooming runs along them, so the width is
 // the clipping's own). False when the window has no clipped sample.
+//
+// The plateau is the clipped samples connected to the nearest one through
+// steps of at most 2 px along each axis (a Bayer mosaic's samples of one
+// colour are 2 px apart), found over the rows' runs of clipped samples rather
+// than pixel by pixel: two runs connect when their rows and their columns
+// are each at most 2 px apart.
 bool clippedPlateau(const PlaneWindow& pw, double x, double y, cv::Point2d* centre, double* half_width)
 {
-  const int H = pw.H;
+  const int H = pw.H, rows = 2 * H + 1;
   constexpr uint8_t kClippedSample = PlaneWindow::kClipped | PlaneWindow::kSample;
-  auto clipped = [&](int dx, int dy) { return (pw.flags[pw.index(dx, dy)] & kClippedSample) == kClippedSample; };
-  int sx = 0, sy = 0;
-  double best = detail::kInf;
-  for (int dy = -H; dy <= H; ++dy)
+  struct Run
   {
-    const double ey2 = detail::square(pw.cy + dy - y);
-    if (!(ey2 < best))
-      continue;  // no pixel of this row is nearer
-    for (int dx = -H; dx <= H; ++dx)
-      if (clipped(dx, dy) && detail::square(pw.cx + dx - x) + ey2 < best)
+    int row, x0, x1;  // window coordinates, x0..x1 inclusive
+  };
+  // At most H + 1 runs per row (a gap between two); not initialised.
+  Run runs[(2 * PlaneWindow::kMaxRadius + 1) * (PlaneWindow::kMaxRadius + 1)];
+  int first[2 * PlaneWindow::kMaxRadius + 2];  // row r's runs are [first[r], first[r + 1])
+  int n_runs = 0, seed = -1;
+  double best = detail::kInf;
+  const double ox = x - pw.cx;
+  for (int r = 0; r < rows; ++r)
+  {
+    first[r] = n_runs;
+    const uint8_t* f = pw.flags + r * pw.stride;
+    const double ey2 = detail::square(pw.cy + r - H - y);
+    for (int c = 0; c < rows; ++c)
+    {
+#if CV_SIMD128
+      // Sixteen pixels without a clipped one at a time (most of the window).
+      while (c + 16 <= rows && cv::v_reduce_max(cv::v_load(f + c) & cv::v_setall_u8(PlaneWindow::kClipped)) == 0)
+        c += 16;
+      if (c >= rows)
+        break;
+#endif
+      if ((f[c] & kClippedSample) != kClippedSample)
+        continue;
+      const int c0 = c;
+      while (c + 1 < rows && (f[c + 1] & kClippedSample) == kClippedSample)
+        ++c;
+      runs[n_runs] = Run{r, c0 - H, c - H};
+      // The run's pixel nearest to x (the leftmost of two as near, as a
+      // row-major scan keeping the first strict minimum would take).
+      const int dx = std::min(std::max(static_cast<int>(std::ceil(ox - 0.5)), c0 - H), c - H);
+      const double d2 = detail::square(pw.cx + dx - x) + ey2;
+      if (d2 < best)
       {
-        best = detail::square(pw.cx + dx - x) + ey2;
-        sx = dx;
-        sy = dy;
+        best = d2;
+        seed = n_runs;
+      }
+      ++n_runs;
+    }
+  }
+  first[rows] = n_runs;
+  if (seed < 0)
+    return false;
+  // Breadth first over the runs from the seed's.
+  bool in[sizeof(runs) / sizeof(runs[0])];
+  std::fill(in, in + n_runs, false);
+  int queue[sizeof(runs) / sizeof(runs[0])];
+  int head = 0, tail = 0;
+  queue[tail++] = seed;
+  in[seed] = true;
+  while (head < tail)
+  {
+    const Run& a = runs[queue[head++]];
+    for (int k = first[std::max(0, a.row - 2)]; k < first[std::min(rows, a.row + 3)]; ++k)
+      if (!in[k] && runs[k].x0 <= a.x1 + 2 && a.x0 <= runs[k].x1 + 2)
+      {
+        in[k] = true;
+        queue[tail++] = k;
       }
   }
-  if (!std::isfinite(best))
-    return false;
-  // Flood fill within 2 px (a Bayer mosaic's samples of one colour are 2 px apart).
-  // Only the window's rows are cleared, and the stack is not initialised
-  // (cv::Point's constructor would zero all of it: 20 kB a call).
-  struct Cell
+  long sx = 0, sy = 0, n = 0;
+  int widest = 0;
+  for (int r = 0; r < rows; ++r)
   {
-    int x, y;
-  };
-  uint8_t seen[PlaneWindow::kSize];
-  std::fill(seen, seen + (2 * H + 1) * pw.stride, uint8_t(0));
-  Cell stack[PlaneWindow::kSize];
-  int top = 0;
-  stack[top++] = Cell{sx, sy};
-  seen[pw.index(sx, sy)] = 1;
-  double mx = 0, my = 0;
-  int n = 0, widest = 0;
-  cv::Vec2i row_span[2 * PlaneWindow::kMaxRadius + 1];
-  std::fill(row_span, row_span + 2 * H + 1, cv::Vec2i(1 << 20, -(1 << 20)));
-  while (top > 0)
-  {
-    const Cell q = stack[--top];
-    mx += q.x;
-    my += q.y;
-    ++n;
-    cv::Vec2i& span = row_span[q.y + H];
-    span = cv::Vec2i(std::min(span[0], q.x), std::max(span[1], q.x));
-    widest = std::max(widest, span[1] - span[0] + 1);
-    const int ex0 = std::max(-2, -H - q.x), ex1 = std::min(2, H - q.x);
-    for (int ey = std::max(-2, -H - q.y); ey <= std::min(2, H - q.y); ++ey)
-      for (int ex = ex0; ex <= ex1; ++ex)
-        if (clipped(q.x + ex, q.y + ey) && !seen[pw.index(q.x + ex, q.y + ey)])
-        {
-          seen[pw.index(q.x + ex, q.y + ey)] = 1;
-          stack[top++] = Cell{q.x + ex, q.y + ey};  // each pixel once: fits
-        }
+    int lo = 1 << 20, hi = -(1 << 20);
+    for (int k = first[r]; k < first[r + 1]; ++k)
+    {
+      if (!in[k])
+        continue;
+      const Run& q = runs[k];
+      const long len = q.x1 - q.x0 + 1;
+      sx += (q.x0 + q.x1) * len / 2;  // (x0 + x1) and len differ in parity: exact
+      sy += (r - H) * len;
+      n += len;
+      lo = std::min(lo, q.x0);
+      hi = std::max(hi, q.x1);
+    }
+    widest = std::max(widest, hi - lo + 1);
   }
-  *centre = cv::Point2d(pw.cx + mx / n, pw.cy + my / n);
+  *centre = cv::Point2d(pw.cx + static_cast<double>(sx) / n, pw.cy + static_cast<double>(sy) / n);
   *half_width = 0.5 * widest;
   return true;
 }
