@@ -675,8 +675,12 @@ void describeWindow(const WeightWindow& win, SpotFit* out)
 // shape (and an iterated centroid can drift along a bloom streak), so a
 // Gaussian fit to the flanks locates it, started from the plateau's centroid
 // with sigmas that the plateau's width allows (a Gaussian of peak A clipped
-// at L is clipped out to sigma sqrt(2 ln(A / L))), in a window wide enough
-// for the plateau and its flanks, recentred once on the first fit.
+// at L is clipped out to sigma sqrt(2 ln(A / L))), recentred once on the
+// first fit. The window is the fit's disk (3 sigma + 2 px) and the
+// background's ring just outside it, at 3.5 sigma or more, where the dot adds
+// 2e-3 of its peak at most (sigma 6 px; 4e-5 at 2 px), and that evenly all
+// round: the plane's offset, not its tilt. The ring nearest the dot is the
+// best estimate of the background under it on a sloping or textured rock.
 bool refineClipped(const FramePlanes& planes, const RefineSettings& rs, double x0, double y0, double sigma0,
                    int fixed_radius, RefineScratch* scratch, SpotFit* out)
 {
@@ -692,7 +696,7 @@ bool refineClipped(const FramePlanes& planes, const RefineSettings& rs, double x
   for (int pass = 0; pass < 2; ++pass)
   {
     const int cx = static_cast<int>(std::lround(fit.x)), cy = static_cast<int>(std::lround(fit.y));
-    const int reach = fixed_radius > 0 ? fixed_radius : static_cast<int>(std::ceil(half_width + 3.0 * fit.sigma)) + 1;
+    const int reach = fixed_radius > 0 ? fixed_radius : static_cast<int>(std::ceil(3.0 * fit.sigma)) + 3;
     const int H = windowRadius(planes, cx, cy, reach, fit.sigma, rs.max_sigma);
     if (H < 2)
       return false;
