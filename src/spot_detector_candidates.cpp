@@ -3,6 +3,7 @@
 // candidates, which are in pixels of the full frame.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "spot_detector_fast_stages.h"
 
@@ -261,6 +262,9 @@ void BlobSplitter::reset(const FramePlanes& planes, const std::vector<Run>& runs
     run_list_[run_start_[run_blob[i] + 1]++] = i;  // run_start_[k] ends as blob k's first run
   if (discs_.size() < blobs.size())
     discs_.resize(blobs.size());
+  if (peaks_.size() < blobs.size())
+    peaks_.resize(blobs.size());
+  peaks_min_.assign(blobs.size(), std::numeric_limits<int>::max());
   for (size_t k = 0; k < blobs.size(); ++k)
     discs_[k].clear();
 }
@@ -292,6 +296,61 @@ bool BlobSplitter::prominent(int gx, int gy, int g, int radius, int min_peak) co
   return 2 * g - (v[3] + v[4]) >= 2 * std::max(min_peak, g / 2);
 }
 
+// Scores of cells gx0..gx1 of row gy into out[0..]: -1 outside the grid, as scoreAt.
+void BlobSplitter::rowScores(int gy, int gx0, int gx1, int* out) const
+{
+  const int cols = planes_->cols();
+  if (gy < 0 || gy >= planes_->rows())
+  {
+    std::fill(out, out + (gx1 - gx0 + 1), -1);
+    return;
+  }
+  const int a = std::max(gx0, 0), b = std::min(gx1, cols - 1);
+  std::fill(out, out + (a - gx0), -1);
+  if (a <= b)
+    planes_->scoreRun(gy, a, b, out + (a - gx0));
+  std::fill(out + (std::max(a, b + 1) - gx0), out + (gx1 - gx0 + 1), -1);
+}
+
+const std::vector<BlobSplitter::Peak>& BlobSplitter::peaksOf(int blob, int min_peak)
+{
+  std::vector<Peak>& peaks = peaks_[blob];
+  if (peaks_min_[blob] <= min_peak)
+    return peaks;
+  peaks.clear();
+  for (int ri = run_start_[blob]; ri < run_start_[blob + 1]; ++ri)
+  {
+    const Run& run = (*runs_)[run_list_[ri]];
+    // The run's row and the rows above and below it, one cell wider each side.
+    const int n = run.x1 - run.x0 + 3;
+    row_scores_.resize(3 * static_cast<size_t>(n));
+    int* const above = row_scores_.data();
+    int* const row = above + n;
+    int* const below = row + n;
+    rowScores(run.y, run.x0 - 1, run.x1 + 1, row);
+    bool rows_read = false;
+    for (int px = run.x0; px <= run.x1; ++px)
+    {
+      const int k = px - run.x0 + 1, g = row[k];
+      if (g < min_peak || row[k - 1] > g || row[k + 1] > g)
+        continue;
+      if (!rows_read)
+      {
+        rowScores(run.y - 1, run.x0 - 1, run.x1 + 1, above);
+        rowScores(run.y + 1, run.x0 - 1, run.x1 + 1, below);
+        rows_read = true;
+      }
+      if (std::max({above[k - 1], above[k], above[k + 1], below[k - 1], below[k], below[k + 1]}) <= g)
+        peaks.push_back({px, run.y, g});
+    }
+  }
+  std::stable_sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) { return a.g > b.g; });
+  peaks_min_[blob] = min_peak;
+  return peaks;
+}
+
+// The strongest prominent local maximum outside the discs, the first in scan
+// order among equal scores: the first such in peaksOf's list.
 bool BlobSplitter::nextSeed(const Candidate& c, double x, double y, double s, int min_peak, double max_sigma_px,
                             Candidate* seed)
 {
@@ -303,30 +362,19 @@ bool BlobSplitter::nextSeed(const Candidate& c, double x, double y, double s, in
   if (std::max(b.x1 - b.x0, b.y1 - b.y0) + 1 <= 2 * disc.back()[2] || disc.size() > 8)
     return false;
   const int radius = std::max(2, static_cast<int>(std::lround(2.0 * s / k)));
-  int best = min_peak - 1, bx = -1, by = -1;
-  for (int ri = run_start_[c.blob]; ri < run_start_[c.blob + 1]; ++ri)
+  int bx = -1, by = -1;
+  for (const Peak& p : peaksOf(c.blob, min_peak))
   {
-    const Run& run = (*runs_)[run_list_[ri]];
-    for (int px = run.x0; px <= run.x1; ++px)
+    if (p.g < min_peak)
+      break;
+    bool inside = false;
+    for (const cv::Vec3d& d : disc)
+      inside = inside || (p.x - d[0]) * (p.x - d[0]) + (p.y - d[1]) * (p.y - d[1]) < d[2] * d[2];
+    if (!inside && prominent(p.x, p.y, p.g, radius, min_peak))
     {
-      bool inside = false;
-      for (const cv::Vec3d& d : disc)
-        inside = inside || (px - d[0]) * (px - d[0]) + (run.y - d[1]) * (run.y - d[1]) < d[2] * d[2];
-      if (inside)
-        continue;
-      const int g = planes_->scoreAt(px, run.y);
-      if (g <= best)
-        continue;
-      bool local_max = true;
-      for (int dy = -1; dy <= 1 && local_max; ++dy)
-        for (int dx = -1; dx <= 1 && local_max; ++dx)
-          local_max = (dx == 0 && dy == 0) || planes_->scoreAt(px + dx, run.y + dy) <= g;
-      if (local_max && prominent(px, run.y, g, radius, min_peak))
-      {
-        best = g;
-        bx = px;
-        by = run.y;
-      }
+      bx = p.x;
+      by = p.y;
+      break;
     }
   }
   if (bx < 0)

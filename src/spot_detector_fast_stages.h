@@ -139,13 +139,26 @@ public:
   bool nextSeed(const Candidate& c, double x, double y, double s, int min_peak, double max_sigma_px, Candidate* seed);
 
 private:
+  // A local maximum of the score in a blob (grid units).
+  struct Peak
+  {
+    int x, y, g;
+  };
   bool prominent(int gx, int gy, int g, int radius, int min_peak) const;
+  // The blob's local maxima of score >= min_peak, the highest first (in scan
+  // order among equal scores): found once per blob and frame, whatever the
+  // discs, which only hide some of them.
+  const std::vector<Peak>& peaksOf(int blob, int min_peak);
+  void rowScores(int gy, int gx0, int gx1, int* out) const;
 
   const FramePlanes* planes_ = nullptr;
   const std::vector<Run>* runs_ = nullptr;
   const std::vector<Blob>* blobs_ = nullptr;
   std::vector<int> run_start_, run_list_;      // runs of blob k: run_list_[run_start_[k] .. run_start_[k + 1])
   std::vector<std::vector<cv::Vec3d>> discs_;  // per blob: x, y, radius (grid units)
+  std::vector<std::vector<Peak>> peaks_;       // per blob: peaksOf's list, valid when peaks_min_[k] <= min_peak
+  std::vector<int> peaks_min_;                 // per blob: the min_peak of its list (INT_MAX: not searched yet)
+  std::vector<int> row_scores_;                // peaksOf's scores of three rows
 };
 
 // Result of the refinement of one candidate (stage 4).

@@ -201,8 +201,9 @@ void FramePlanes::scoreRun(int gy, int gx0, int gx1, int* out) const
   if (!matchedPath() && ambient_.empty() && format_ == PixelFormat::kMono8)
   {
     const uint8_t* px = image_.ptr<uint8_t>(gy);
+    const int* level = block_level_.ptr<int>(gy / kBlock);  // levelOf's row
     for (int gx = gx0; gx <= gx1; ++gx)
-      *out++ = 16 * px[gx] - levelOf(gx, gy);
+      *out++ = 16 * px[gx] - level[gx / kBlock];
     return;
   }
   for (int gx = gx0; gx <= gx1; ++gx)
