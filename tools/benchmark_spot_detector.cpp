@@ -6,7 +6,8 @@
 // percentile ms per frame of each method, their ratio, and the per-stage
 // breakdown of both; then the fast method's thread CPU time per input kind
 // on the same scenes: bgr8 with dimmer dots (few clipped), bayer_rggb8, mono8
-// (NIR), bgr8 with a projector-off frame.
+// (NIR), bgr8 with a projector-off frame. Also the tracked detection with the
+// refinement's accuracy terms switched off, what each costs and buys.
 //
 // Before issue #14/#16 (integrate2 994be93, same frames, thread CPU): fast
 // 1.7-2.3 ms per frame; see docs/performance.md for the figures after.
@@ -163,7 +164,9 @@ struct TruthScore
 // strobed: dim dots (0.3 x) with their projector-off frames, the fast method
 // detecting on the difference (its matched filter thresholded by the noise of
 // the last whole frame when tracking); the baseline on the on-frames alone.
-void benchmarkTracking(int frames, int repeats, bool strobed)
+// The tracking sequences' scene: the study's brightness, half sun, clutter,
+// the rig jittering 2 mm.
+SimulatorParams trackingScene()
 {
   SimulatorParams cfg = studySimulatorParams();
   cfg.lighting.sun_level = 0.5;
@@ -171,6 +174,12 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
   cfg.clutter.olive_minerals = 20;
   cfg.rock.seed = 1100;
   cfg.motion.jitter_translation_m = 0.002;
+  return cfg;
+}
+
+void benchmarkTracking(int frames, int repeats, bool strobed)
+{
+  SimulatorParams cfg = trackingScene();
   if (strobed)
     cfg.lighting.dot_to_sun_ratio *= 0.3;  // dim dots: what strobing is for
   const Simulator sim(cfg);
@@ -258,6 +267,65 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
               score_f.recall(), score_f.rms(), score_t.recall(), score_t.rms());
   std::printf("  ratio baseline/fast: %.1fx full search, %.1fx tracked (median thread CPU)\n",
               median(cpu_b) / median(cpu_f), median(cpu_b) / median(cpu_t));
+}
+
+// What the refinement's accuracy terms cost and buy (issue #18): the tracked
+// detection of the 30 Hz sequence with the rock's texture subtraction and the
+// albedo normalisation each switched off; thread CPU per tracked frame and
+// centroid RMS against the truth. The variants run interleaved, frame by
+// frame, so that the machine's load falls on all alike.
+void benchmarkRefinementTerms(int frames, int repeats)
+{
+  const Simulator sim(trackingScene());
+  std::vector<SimFrame> seq;
+  for (int i = 0; i < frames; ++i)
+    seq.push_back(sim.render(i / 30.0));
+  struct Variant
+  {
+    const char* name;
+    bool subtract, normalise;
+  };
+  const Variant variants[] = {{"as shipped", true, true},
+                              {"without the rock's texture subtracted", false, true},
+                              {"without the albedo normalisation", true, false},
+                              {"without both", false, false}};
+  constexpr int kVariants = sizeof(variants) / sizeof(variants[0]);
+  std::vector<SpotDetector> detectors;
+  std::vector<SpotSearchPlanner> planners(kVariants);
+  for (const Variant& v : variants)
+  {
+    SpotDetectorParams p;
+    p.fast.subtract_rock_texture = v.subtract;
+    p.fast.normalise_albedo = v.normalise;
+    detectors.emplace_back(p);
+  }
+  std::vector<std::vector<double>> cpu(kVariants);
+  std::vector<TruthScore> score(kVariants);
+  for (int r = 0; r < repeats; ++r)
+  {
+    for (SpotSearchPlanner& planner : planners)
+      planner.reset();
+    for (const SimFrame& frame : seq)
+      for (int v = 0; v < kVariants; ++v)
+      {
+        const double c0 = threadCpuMs();
+        if (!detectors[v].hasRegionStatistics(false, PixelFormat::kBgr8, frame.image.size()))
+          planners[v].requestFullSearch("noise statistics");
+        const std::vector<cv::Rect> regions = planners[v].plan(frame.image.size());
+        const SpotDetectionResult t = detectors[v].detectIn(frame.image, cv::Mat(), PixelFormat::kBgr8, regions);
+        planners[v].update(t);
+        if (!regions.empty())
+          cpu[v].push_back(threadCpuMs() - c0);
+        score[v].add(frame, t.spots);
+      }
+  }
+  std::printf(
+      "refinement terms, tracked, %d frames at 30 Hz x %d (thread CPU median per tracked frame; against "
+      "the truth):\n",
+      frames, repeats);
+  for (int v = 0; v < kVariants; ++v)
+    std::printf("  %-40s %.3f ms, recall %.4f, centroid RMS %.4f px\n", variants[v].name, median(cpu[v]),
+                score[v].recall(), score[v].rms());
 }
 
 // Pins the process to the first core it may run on; false when the OS refuses.
@@ -363,6 +431,7 @@ int main(int argc, char** argv)
               median(tb) / median(tf), percentile(tb, 0.0) / percentile(tf, 0.0), median(cpu_b) / median(cpu_f));
   benchmarkTracking(std::max(frames, 30), repeats, false);
   benchmarkTracking(std::max(frames, 30), repeats, true);
+  benchmarkRefinementTerms(std::max(frames, 30), repeats);
   benchmarkInputs(frames * repeats);
   return 0;
 }
