@@ -157,13 +157,6 @@ struct TruthScore
   double rms() const { return found ? std::sqrt(sq / found) : 0.0; }
 };
 
-// Tracking: a 30 Hz sequence of one scene (the rig jittering 2 mm), the
-// baseline, the fast method searching every frame in full, and the fast
-// method in the windows of SpotSearchPlanner (the nodelet's default), on the
-// same frames; recall and centroid RMS of both fast runs against the truth.
-// strobed: dim dots (0.3 x) with their projector-off frames, the fast method
-// detecting on the difference (its matched filter thresholded by the noise of
-// the last whole frame when tracking); the baseline on the on-frames alone.
 // The tracking sequences' scene: the study's brightness, half sun, clutter,
 // the rig jittering 2 mm.
 SimulatorParams trackingScene()
@@ -177,6 +170,13 @@ SimulatorParams trackingScene()
   return cfg;
 }
 
+// Tracking: a 30 Hz sequence of one scene (the rig jittering 2 mm), the
+// baseline, the fast method searching every frame in full, and the fast
+// method in the windows of SpotSearchPlanner (the nodelet's default), on the
+// same frames; recall and centroid RMS of the three against the truth.
+// strobed: dim dots (0.3 x) with their projector-off frames, the fast method
+// detecting on the difference (its matched filter thresholded by the noise of
+// the last whole frame when tracking); the baseline on the on-frames alone.
 void benchmarkTracking(int frames, int repeats, bool strobed)
 {
   SimulatorParams cfg = trackingScene();
