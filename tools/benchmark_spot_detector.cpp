@@ -170,6 +170,22 @@ SimulatorParams trackingScene()
   return cfg;
 }
 
+// One frame of the nodelet's tracking loop: the planner's windows (a full
+// search while the detector has no noise statistics for them), the detection
+// in them, the planner updated. ambient(regions): the frame's projector-off
+// light in those windows (an empty Mat: none).
+template <typename Ambient>
+SpotDetectionResult detectTracked(SpotDetector* detector, SpotSearchPlanner* planner, const cv::Mat& im, bool strobed,
+                                  Ambient ambient, std::vector<cv::Rect>* regions)
+{
+  if (!detector->hasRegionStatistics(strobed, PixelFormat::kBgr8, im.size()))
+    planner->requestFullSearch("noise statistics");
+  *regions = planner->plan(im.size());
+  const SpotDetectionResult result = detector->detectIn(im, ambient(*regions), PixelFormat::kBgr8, *regions);
+  planner->update(result);
+  return result;
+}
+
 // Tracking: a 30 Hz sequence of one scene (the rig jittering 2 mm), the
 // baseline, the fast method searching every frame in full, and the fast
 // method in the windows of SpotSearchPlanner (the nodelet's default), on the
@@ -236,14 +252,17 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
       const SpotDetectionResult f = full.detect(im, ambientOf(k, {}, &full_cache), PixelFormat::kBgr8);
       cpu_f.push_back(threadCpuMs() - c0);
       c0 = threadCpuMs();
-      if (!tracked.hasRegionStatistics(strobed, PixelFormat::kBgr8, im.size()))
-        planner.requestFullSearch("noise statistics");
-      const std::vector<cv::Rect> regions = planner.plan(im.size());
-      const double a0 = threadCpuMs();
-      const cv::Mat amb = ambientOf(k, regions.empty() ? regions : mergeSearchRegions(regions, im.size()), &cache);
-      cpu_ta.push_back(threadCpuMs() - a0);
-      const SpotDetectionResult t = tracked.detectIn(im, amb, PixelFormat::kBgr8, regions);
-      planner.update(t);
+      std::vector<cv::Rect> regions;
+      const SpotDetectionResult t = detectTracked(
+          &tracked, &planner, im, strobed,
+          [&](const std::vector<cv::Rect>& in)
+          {
+            const double a0 = threadCpuMs();
+            const cv::Mat amb = ambientOf(k, in.empty() ? in : mergeSearchRegions(in, im.size()), &cache);
+            cpu_ta.push_back(threadCpuMs() - a0);
+            return amb;
+          },
+          &regions);
       cpu_t.push_back(threadCpuMs() - c0);
       for (const cv::Rect& g : regions)
         searched += static_cast<size_t>(g.area());
@@ -312,11 +331,10 @@ void benchmarkRefinementTerms(int frames, int repeats)
       for (int v = 0; v < kVariants; ++v)
       {
         const double c0 = threadCpuMs();
-        if (!detectors[v].hasRegionStatistics(false, PixelFormat::kBgr8, frame.image.size()))
-          planners[v].requestFullSearch("noise statistics");
-        const std::vector<cv::Rect> regions = planners[v].plan(frame.image.size());
-        const SpotDetectionResult t = detectors[v].detectIn(frame.image, cv::Mat(), PixelFormat::kBgr8, regions);
-        planners[v].update(t);
+        std::vector<cv::Rect> regions;
+        const SpotDetectionResult t = detectTracked(
+            &detectors[v], &planners[v], frame.image, false, [](const std::vector<cv::Rect>&) { return cv::Mat(); },
+            &regions);
         if (!regions.empty())
           cpu[v].push_back(threadCpuMs() - c0);
         score[v].add(frame, t.spots);
