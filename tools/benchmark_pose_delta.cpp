@@ -13,8 +13,8 @@
 
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/pose_delta.h"
-#include "structured_light_stabilizer/sim/simulator.h"
+#include "structured_light_stabilizer/pose/pose_delta.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
 
 using namespace structured_light_stabilizer;
 

@@ -13,8 +13,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "structured_light_stabilizer/sim/radiometry.h"
-#include "structured_light_stabilizer/sim/simulator.h"
+#include "structured_light_stabilizer/sim/design/radiometry.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
 
 using structured_light_stabilizer::SimFrame;
 using structured_light_stabilizer::Simulator;

@@ -9,7 +9,8 @@
 // (NIR), bgr8 with a projector-off frame. Also the tracked detection with the
 // refinement's accuracy terms switched off, what each costs and buys.
 //
-// Before issue #14/#16 (integrate2 994be93, same frames, thread CPU): fast
+// Before the textured-rock physics and the input kinds (integrate2 994be93,
+// same frames, thread CPU): fast
 // 1.7-2.3 ms per frame; see docs/performance.md for the figures after.
 //
 // usage: benchmark_spot_detector [frames=40] [repeats=5]
@@ -27,12 +28,12 @@
 
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/ambient_compensation.h"
-#include "structured_light_stabilizer/sim/radiometry.h"
+#include "structured_light_stabilizer/detection/ambient_compensation.h"
+#include "structured_light_stabilizer/sim/design/radiometry.h"
 #include "support/benchmark_frames.h"
-#include "structured_light_stabilizer/sim/simulator.h"
-#include "structured_light_stabilizer/spot_detector.h"
-#include "structured_light_stabilizer/spot_search_planner.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
+#include "structured_light_stabilizer/detection/spot_detector.h"
+#include "structured_light_stabilizer/detection/spot_search_planner.h"
 
 using namespace structured_light_stabilizer;
 
@@ -291,7 +292,7 @@ void benchmarkTracking(int frames, int repeats, bool strobed)
               median(cpu_b) / median(cpu_f), median(cpu_b) / median(cpu_t));
 }
 
-// What the refinement's accuracy terms cost and buy (issue #18): the tracked
+// What the refinement's accuracy terms cost and buy: the tracked
 // detection of the 30 Hz sequence with the rock's texture subtraction and the
 // albedo normalisation each switched off; thread CPU per tracked frame and
 // centroid RMS against the truth. The variants run interleaved, frame by

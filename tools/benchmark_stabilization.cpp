@@ -124,7 +124,7 @@ int main(int argc, char** argv)
   if (argc > 5)
     s.control.ki_translation = s.control.ki_rotation = std::atof(argv[5]);
   const std::string csv = argc > 6 ? argv[6] : "";
-  s.control.arm_delay_s = s.arm.delay_s + 1.0 / (2.0 * M_PI * s.arm.bandwidth_hz);
+  s.control.arm_delay = s.arm.delay_s + 1.0 / (2.0 * M_PI * s.arm.bandwidth_hz);
   std::printf(
       "loop model: %.0f Hz frames, latency %.0f ms + 0-%.0f ms, arm delay %.0f ms + lag %.1f Hz, kp %.1f ki %.1f, "
       "compensation %s; estimate noise %.2f mm %.4f deg per axis\n",

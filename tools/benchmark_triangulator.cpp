@@ -15,8 +15,8 @@
 #include <memory>
 
 #include "support/triangulator_scene.h"
-#include "structured_light_stabilizer/beam_tracker.h"
-#include "structured_light_stabilizer/triangulator.h"
+#include "structured_light_stabilizer/triangulation/beam_tracker.h"
+#include "structured_light_stabilizer/triangulation/triangulator.h"
 
 using namespace structured_light_stabilizer;
 

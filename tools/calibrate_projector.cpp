@@ -1,5 +1,5 @@
 // calibrate_projector: the projector's beam rays from recorded chessboard
-// views (issue #19; docs/calibration.md).
+// views (docs/calibration.md).
 //
 //   calibrate_projector --images DIR --camera-info FILE.yaml --board COLSxROWS --square METRES
 //                       --output projector.yaml [--rows R --cols C] [--margin METRES]
@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "structured_light_stabilizer/calibrate_projector_cli.h"
+#include "cli/calibrate_projector_cli.h"
 
 int main(int argc, char** argv)
 {

@@ -16,7 +16,7 @@
 
 #include <opencv2/imgcodecs.hpp>
 
-#include "structured_light_stabilizer/sim/rig_design.h"
+#include "structured_light_stabilizer/sim/design/rig_design.h"
 
 namespace sls = structured_light_stabilizer;
 

@@ -1,12 +1,12 @@
-// Accuracy of PoseDelta from image to pose on the simulator (issue #15's
-// scenes, test/support/pose_delta_chain.h): simulator image -> SpotDetector ->
+// Accuracy of PoseDelta from image to pose on the simulator (the accuracy
+// scenes of test/support/pose_delta_chain.h): simulator image -> SpotDetector ->
 // Triangulator -> PoseDelta, rig jitter +-10 mm / +-1 deg, per seed and
 // pooled, each axis's RMS error next to the 1-sigma the estimator reports.
 //
 // Usage: evaluate_pose_delta [scenes (comma list, default all)] [first seed (1)]
 //        [seeds (4)] [frames per seed (30)] [name=value ...]
 // dt=seconds sets the time between frames (default 0.1).
-// name=value sets a PoseDeltaParams field (numbers and bools, 0/1), e.g.
+// name=value sets any PoseDeltaParams field (pose/pose_delta_params.def; bools 0/1, enums by name), e.g.
 // use_texture=0 texture_refinement_window_px=31.
 // Scenes: weak_texture, missing_dots, worst_snr, flat_textured, rough, textureless.
 #include <cmath>
@@ -51,52 +51,12 @@ std::vector<std::string> split(const std::string& list)
   return out;
 }
 
-// name=value -> params; false when the name is unknown.
+// name=value -> params (any field of pose/pose_delta_params.def); false
+// when the name is unknown or the value does not read as its type.
 bool setParam(const std::string& setting, PoseDeltaParams* p)
 {
   const size_t eq = setting.find('=');
-  if (eq == std::string::npos)
-    return false;
-  const std::string name = setting.substr(0, eq);
-  const double v = std::atof(setting.c_str() + eq + 1);
-  const std::vector<std::pair<const char*, double*>> doubles = {
-      {"huber_k", &p->huber_k},
-      {"min_texture_sigma_px", &p->min_texture_sigma_px},
-      {"texture_min_distance_px", &p->texture_min_distance_px},
-      {"texture_quality", &p->texture_quality},
-      {"texture_dot_clearance_px", &p->texture_dot_clearance_px},
-      {"texture_depth_sigma_m", &p->texture_depth_sigma_m},
-      {"texture_extrapolated_depth_sigma_m", &p->texture_extrapolated_depth_sigma_m},
-      {"texture_error_inflation", &p->texture_error_inflation},
-      {"freeze_factor", &p->freeze_factor},
-      {"texture_min_snr", &p->texture_min_snr},
-      {"texture_max_sigma_px", &p->texture_max_sigma_px},
-      {"min_geometry_sigma_m", &p->min_geometry_sigma_m},
-      {"filter_acceleration_noise", &p->filter_acceleration_noise},
-      {"filter_angular_acceleration_noise", &p->filter_angular_acceleration_noise}};
-  const std::vector<std::pair<const char*, int*>> ints = {
-      {"texture_max_features", &p->texture_max_features},
-      {"texture_min_features", &p->texture_min_features},
-      {"texture_window_px", &p->texture_window_px},
-      {"texture_pyramid_levels", &p->texture_pyramid_levels},
-      {"texture_refinement_window_px", &p->texture_refinement_window_px},
-      {"max_iterations", &p->max_iterations},
-      {"texture_max_level", &p->texture_max_level},
-      {"texture_min_level", &p->texture_min_level}};
-  const std::vector<std::pair<const char*, bool*>> bools = {{"use_texture", &p->use_texture},
-                                                            {"symmetric", &p->symmetric},
-                                                            {"texture_whole_image", &p->texture_whole_image},
-                                                            {"filter", &p->filter}};
-  for (const auto& d : doubles)
-    if (name == d.first)
-      return (*d.second = v, true);
-  for (const auto& i : ints)
-    if (name == i.first)
-      return (*i.second = static_cast<int>(v), true);
-  for (const auto& b : bools)
-    if (name == b.first)
-      return (*b.second = v != 0.0, true);
-  return false;
+  return eq != std::string::npos && p->set(setting.substr(0, eq), setting.substr(eq + 1));
 }
 
 }  // namespace

@@ -16,8 +16,8 @@
 
 #include <opencv2/imgcodecs.hpp>
 
-#include "structured_light_stabilizer/detail/math.h"
-#include "structured_light_stabilizer/sim/scene_analysis.h"
+#include "structured_light_stabilizer/common/math.h"
+#include "structured_light_stabilizer/sim/design/scene_analysis.h"
 
 namespace sls = structured_light_stabilizer;
 

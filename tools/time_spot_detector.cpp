@@ -25,7 +25,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "structured_light_stabilizer/spot_detector.h"
+#include "structured_light_stabilizer/detection/spot_detector.h"
 #ifndef SLS_TIME_ONLY
 #include "support/benchmark_frames.h"
 #endif

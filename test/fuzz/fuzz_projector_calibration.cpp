@@ -6,7 +6,7 @@
 #include <cstdlib>
 #include <string>
 
-#include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/calibration/projector_calibration.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size)
 {

@@ -8,8 +8,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "structured_light_stabilizer/sim/radiometry.h"
-#include "structured_light_stabilizer/sim/scene_analysis.h"
+#include "structured_light_stabilizer/sim/design/radiometry.h"
+#include "structured_light_stabilizer/sim/design/scene_analysis.h"
 
 namespace
 {

@@ -21,8 +21,8 @@
 
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/spot_detector.h"
-#include "structured_light_stabilizer/spot_search_planner.h"
+#include "structured_light_stabilizer/detection/spot_detector.h"
+#include "structured_light_stabilizer/detection/spot_search_planner.h"
 
 namespace
 {

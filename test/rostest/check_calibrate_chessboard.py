@@ -3,7 +3,7 @@
 every 2 s (plus the analysis) while the simulated rig drifts towards the tilted board, until
 six views are taken; then checks the report (one centre of projection, every
 view used) and the written YAML against the simulator's exact rays at
-1.5 m (issue #19: <= 0.5 mm RMS)."""
+1.5 m (<= 0.5 mm RMS)."""
 import math
 import os
 import time

@@ -410,7 +410,7 @@ class HostileInputs(unittest.TestCase):
         binned.binning_x = binned.binning_y = 2
         send("camera_info binning", carrier_image(), binned, fragments=["binning 2x2"], points_only=True)
         odd = good_info_copy()
-        odd.distortion_model = "kannala_brandt"  # rational_polynomial is supported since issue #16
+        odd.distortion_model = "kannala_brandt"  # rational_polynomial is supported 
         odd.D = [0.0] * 8
         send("camera_info unknown model", carrier_image(), odd, fragments=["kannala_brandt"], points_only=True)
         # Random headers and bytes: never consistent (data < one row of any

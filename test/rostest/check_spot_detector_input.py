@@ -200,7 +200,7 @@ class SpotDetectorInput(unittest.TestCase):
         self.assertTrue(self.wait_log("mono8 input"), "no mono8 warning")
 
     def test_1b_raw_camera_encodings(self):
-        # What a machine-vision driver sends (#16): Bayer, yuv422, 16-bit mono
+        # What a machine-vision driver sends: Bayer, yuv422, 16-bit mono
         # (both byte orders), each read in place.
         bgr = render_bgr(seed=21)
         self.check_accuracy(self.send(image_msg(bayer_rggb(bgr), "bayer_rggb8")), 0.1, "fast bayer_rggb8")

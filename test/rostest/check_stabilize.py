@@ -2,7 +2,7 @@
 """Reads the stabilisation monitor's final figures (stabilize_monitor/stats)
 and asserts them (stabilize.test, stabilize_open_loop.test).
 
-Closed loop (issue #17 acceptance): closed-loop RMS <= 10 % of the open-loop
+Closed loop (acceptance): closed-loop RMS <= 10 % of the open-loop
 RMS in translation and in rotation (the open loop: the disturbance's own
 offset from the locked pose in the same run, seed and lock); per frame after
 the first second: <= 1.5 mm and 0.08 deg (the open loop drifts to several mm

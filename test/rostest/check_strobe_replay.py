@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """A recorded bag of strobed frames through pipeline.launch source:=none
-strobe:=true (strobe_replay.test, #20 acceptance):
+strobe:=true (strobe_replay.test, the strobed acceptance):
 1. the simulated camera, strobed at 20 Hz (strobe_bag_source.launch:
    projector-on and projector-off frames alternating, the rig moving, full
    sun, dots at ~30 % of the sunlit rock, 2 cm grain; the recommended rig's

@@ -5,7 +5,7 @@ split by StrobeDemux. Asserts, once `frames` pose deltas were compared:
   - the demux: after its phase vote settled, every frame it published on
     camera/image_raw is one the simulator lit (the simulator publishes ground
     truth with exactly those stamps) and none on camera/image_ambient is;
-  - the pipeline against the truth (#20 acceptance for the recommended rig):
+  - the pipeline against the truth (acceptance for the recommended rig):
     recall >= 99.5 %, depth <= 0.1 %, pose <= 0.5 mm / 0.02 deg RMS, >= 95 %
     of the poses valid."""
 import threading

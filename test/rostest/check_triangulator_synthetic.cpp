@@ -8,7 +8,7 @@
 #include <ros/ros.h>
 #include <sensor_msgs/PointCloud2.h>
 
-#include "conversions.h"
+#include "structured_light_stabilizer/nodelets/conversions.h"
 
 using namespace structured_light_stabilizer;
 

@@ -10,7 +10,7 @@
 
 #include "support/triangulator_scene.h"
 #include "structured_light_stabilizer/CentroidArray.h"
-#include "conversions.h"
+#include "structured_light_stabilizer/nodelets/conversions.h"
 
 using namespace structured_light_stabilizer;
 

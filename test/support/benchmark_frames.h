@@ -5,7 +5,7 @@
 
 #include <cmath>
 
-#include "structured_light_stabilizer/sim/simulator.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
 
 namespace structured_light_stabilizer
 {

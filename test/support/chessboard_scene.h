@@ -26,9 +26,9 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "structured_light_stabilizer/camera_model.h"
-#include "structured_light_stabilizer/chessboard.h"
-#include "structured_light_stabilizer/projector_calibration.h"
+#include "structured_light_stabilizer/calibration/camera_model.h"
+#include "structured_light_stabilizer/calibration/chessboard.h"
+#include "structured_light_stabilizer/calibration/projector_calibration.h"
 
 namespace sls_test
 {

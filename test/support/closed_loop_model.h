@@ -14,9 +14,9 @@
 #include <random>
 #include <vector>
 
-#include "structured_light_stabilizer/se3.h"
-#include "structured_light_stabilizer/sim/arm_model.h"
-#include "structured_light_stabilizer/stabilization_controller.h"
+#include "structured_light_stabilizer/common/se3.h"
+#include "structured_light_stabilizer/sim/render/arm_model.h"
+#include "structured_light_stabilizer/control/stabilization_controller.h"
 
 namespace sls_test
 {

@@ -16,13 +16,13 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "structured_light_stabilizer/ambient_compensation.h"
-#include "structured_light_stabilizer/pose_delta.h"
-#include "structured_light_stabilizer/se3.h"
-#include "structured_light_stabilizer/sim/radiometry.h"
-#include "structured_light_stabilizer/sim/simulator.h"
-#include "structured_light_stabilizer/spot_detector.h"
-#include "structured_light_stabilizer/triangulator.h"
+#include "structured_light_stabilizer/detection/ambient_compensation.h"
+#include "structured_light_stabilizer/pose/pose_delta.h"
+#include "structured_light_stabilizer/common/se3.h"
+#include "structured_light_stabilizer/sim/design/radiometry.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
+#include "structured_light_stabilizer/detection/spot_detector.h"
+#include "structured_light_stabilizer/triangulation/triangulator.h"
 #include "support/spot_score.h"
 
 namespace structured_light_stabilizer

@@ -1,6 +1,6 @@
 // Test-only full chain for PoseDelta accuracy: simulator image -> SpotDetector
 // -> Triangulator (with the BeamTracker's prior) -> PoseDeltaEstimator, the
-// way the nodelets chain them, with the scenes (#15): a weakly
+// way the nodelets chain them, with the accuracy scenes: a weakly
 // textured rock, a rough rock with missing dots and clutter, the study's
 // worst SNR, a flat textured plane, a textureless board. Shared by the gtest
 // test_pose_delta_chain and the tool evaluate_pose_delta.
@@ -20,11 +20,11 @@
 #include <Eigen/Geometry>
 #include <opencv2/imgproc.hpp>
 
-#include "structured_light_stabilizer/beam_tracker.h"
-#include "structured_light_stabilizer/pose_delta.h"
-#include "structured_light_stabilizer/sim/simulator.h"
-#include "structured_light_stabilizer/spot_detector.h"
-#include "structured_light_stabilizer/triangulator.h"
+#include "structured_light_stabilizer/triangulation/beam_tracker.h"
+#include "structured_light_stabilizer/pose/pose_delta.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
+#include "structured_light_stabilizer/detection/spot_detector.h"
+#include "structured_light_stabilizer/triangulation/triangulator.h"
 
 namespace sls_test
 {
@@ -39,7 +39,7 @@ struct ChainScene
   std::string name;
   SimulatorParams sim;
   double drop_fraction = 0.0;  // spots removed after detection, per frame
-  // Strobed operation (#20): besides each frame at t, its projector-off
+  // Strobed operation: besides each frame at t, its projector-off
   // (ambient) partner exposed at t + strobe_gap_s; 0 = no strobing. With
   // strobe_both, also the one at t - strobe_gap_s (the frames around it).
   double strobe_gap_s = 0.0;

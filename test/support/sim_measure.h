@@ -7,8 +7,8 @@
 
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/sim/radiometry.h"
-#include "structured_light_stabilizer/sim/simulator.h"
+#include "structured_light_stabilizer/sim/design/radiometry.h"
+#include "structured_light_stabilizer/sim/render/simulator.h"
 
 namespace sim_measure
 {

@@ -9,7 +9,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "structured_light_stabilizer/spot.h"
+#include "structured_light_stabilizer/common/spot.h"
 
 namespace structured_light_stabilizer
 {

@@ -1,7 +1,7 @@
 // Synthetic dot frames with exact truth, for the SpotDetector gtests and its
 // benchmark, written independently of the scene simulator: a reddish rock
 // lit by the sun, with a coarse albedo (texture_px features), optionally a
-// fine multiplicative texture (issue #14: 1-3 cm period, +-25 %) with a
+// fine multiplicative texture (1-3 cm period, +-25 %) with a
 // little hue of its own per channel; a grid of dots whose light is the
 // beam's footprint (a Gaussian, integrated over each pixel) times the albedo
 // under each pixel at the projector's wavelength, then blurred by the optics

@@ -14,10 +14,10 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
-#include "structured_light_stabilizer/camera_model.h"
-#include "structured_light_stabilizer/projector_calibration.h"
-#include "structured_light_stabilizer/spot.h"
-#include "structured_light_stabilizer/triangulator.h"
+#include "structured_light_stabilizer/calibration/camera_model.h"
+#include "structured_light_stabilizer/calibration/projector_calibration.h"
+#include "structured_light_stabilizer/common/spot.h"
+#include "structured_light_stabilizer/triangulation/triangulator.h"
 
 namespace sls_test
 {
