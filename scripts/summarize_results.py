@@ -2,7 +2,7 @@
 """Prints one closing line 'N passed, N failed, N skipped' over the JUnit XML
 files that catkin's run_tests wrote, and exits non-zero on any failure or
 when no test ran at all. Each failed test gets one line with the last line of
-its failure message (the assertion), so that a log cut to its tail (CI) still
+its failure message (the assertion and its message), so that a log cut to its tail (CI) still
 says why."""
 import glob
 import os
@@ -20,9 +20,16 @@ def reason(case):
         node = case.find("error")
     text = (node.text or "") + "\n" + (node.get("message") or "")
     lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.strip().startswith("]]")]
-    keep = [ln for ln in lines if "Error" in ln or "assert" in ln.lower() or "Failure" in ln]
-    last = (keep or lines or ["(no message)"])[-1]
-    return last if len(last) <= 240 else last[:237] + "..."
+    # Python: the AssertionError line and what follows it (the message with
+    # the figures), not the source line of the assert above it.
+    for i, ln in enumerate(lines):
+        if ln.startswith("AssertionError"):
+            last = " ".join(lines[i:])
+            break
+    else:
+        keep = [ln for ln in lines if "Error" in ln or "assert" in ln.lower() or "Failure" in ln]
+        last = (keep or lines or ["(no message)"])[-1]
+    return last if len(last) <= 600 else last[:597] + "..."
 
 
 for path in glob.glob(os.path.join(root, "**", "*.xml"), recursive=True):

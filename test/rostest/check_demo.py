@@ -23,10 +23,21 @@ class DemoAccuracy(unittest.TestCase):
             latest.update({kv.key: float(kv.value) for kv in msg.values})
 
         rospy.Subscriber("demo_monitor/stats", DiagnosticStatus, on_stats)
-        deadline = time.time() + 120.0
-        while time.time() < deadline and latest.get("pose_compared", 0) < frames:
+        # The bound is on accuracy, not speed: wait as long as the figures
+        # still grow (a loaded CI machine runs the simulator slower), give up
+        # after 60 s without a new comparison or 240 s in all.
+        start = last_progress = time.time()
+        seen = -1.0
+        while latest.get("pose_compared", 0) < frames:
+            now = time.time()
+            progress = latest.get("pose_compared", 0) + latest.get("frames_published", 0)
+            if progress > seen:
+                seen, last_progress = progress, now
+            if now - last_progress > 60.0 or now - start > 240.0:
+                break
             time.sleep(0.5)
         s = dict(latest)
+        s["waited_s"] = time.time() - start
         print("[ MEASURE ] demo: %s" % ", ".join("%s=%.4g" % kv for kv in sorted(s.items())))
         self.assertGreaterEqual(s.get("pose_compared", 0), frames,
                                 "too few pose deltas compared with the ground truth: %s" % s)
