@@ -8,6 +8,8 @@
 // genuine dots per frame on textured rock). Clutter of the projector's
 // colour and a dot's size is the Triangulator's to reject, by geometry.
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -295,6 +297,7 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const bool unrounded = !ambient.empty() && ambient.depth() == CV_32F;
   if (unrounded)
     ambient.convertTo(ambient8_, CV_8U);  // rounded and saturated (NaN -> 0)
+  StageTimer bind_timer;
   planes_.bind(image, unrounded ? ambient8_ : ambient, format, params.projector_color, p,
                in_regions_ ? &frame_noise_ : nullptr, unrounded ? ambient : cv::Mat());
   if (!in_regions_ && planes_.matchedPath())
@@ -303,19 +306,23 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
     noise_size_ = image.size();
     noise_age_ = 0;
   }
+  if (std::getenv("SLS_DEBUG_LOCAL"))
+    std::fprintf(stderr, "bind %.2f ms\n", bind_timer.lap());
   findCandidates(p, debug);
   tm.threshold_ms = threshold_ms_;
   tm.labelling_ms = timer.lap() - threshold_ms_;
+  // More candidates than the pattern can hold (texture of the projector's
+  // colour, noise, a flash): the most significant are refined, the frame is
+  // never refused for them.
   const size_t budget = candidateBudget(params);
+  std::string note;
   if (candidates_.size() > budget)
   {
-    SpotDetectionResult refused;
-    refused.error = std::to_string(candidates_.size()) + " candidate spots for " + std::to_string(budget) +
-                    " at most (fast.max_candidates, or 10 x the projector's beams): not a dot image (noise, a "
-                    "flash, or detection thresholds far too low)";
-    if (timings)
-      *timings = tm;
-    return refused;
+    note = "kept the " + std::to_string(budget) + " most significant of " + std::to_string(candidates_.size()) +
+           " candidate spots (fast.max_candidates, or 10 x the projector's beams)";
+    std::stable_sort(candidates_.begin(), candidates_.end(),
+                     [](const Candidate& a, const Candidate& b) { return a.significance > b.significance; });
+    candidates_.resize(budget);
   }
   const std::vector<KeptSpot> kept = refineCandidates(p, debug, 2 * budget);
   const std::vector<char> drop = markDuplicates(kept);
@@ -335,6 +342,7 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
       debug->fitted += q.clipped ? 1 : 0;
   }
   result.spots = std::move(spots);
+  result.note = note;
   if (timings)
     *timings = tm;
   result.ok = true;
@@ -350,6 +358,8 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
                       planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
   threshold_pass_.run(&planes_, coarse);
   threshold_ms_ = timer.lap();
+  if (std::getenv("SLS_DEBUG_LOCAL"))
+    std::fprintf(stderr, "threshold pass %.2f ms, %zu runs\n", threshold_ms_, threshold_pass_.runs().size());
 
   const std::vector<Blob>& blobs = labeller_.label(threshold_pass_.runs(), planes_);
   candidates_.clear();
@@ -385,11 +395,16 @@ std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDete
       const int px = c.peak_x >= 0 ? c.peak_x : static_cast<int>(std::lround(c.x));
       const int py = c.peak_y >= 0 ? c.peak_y : static_cast<int>(std::lround(c.y));
       Candidate seed;
-      const int min_peak = planes_.peakThreshold(p.min_peak);
+      const int k = planes_.scale();
+      const int min_peak = planes_.peakThresholdAt(px / k, py / k, p.min_peak);
       if (fits ? splitter_.nextSeed(c, r.x, r.y, r.sigma, min_peak, p.max_sigma_px, &seed)
                : splitter_.nextSeed(c, px, py, 1.5, min_peak, p.max_sigma_px, &seed))
         if (candidates_.size() < max_candidates)  // the seeds of split blobs count too
+        {
+          const int gx = seed.peak_x / k, gy = seed.peak_y / k;
+          seed.significance = planes_.significance(gx, gy, planes_.scoreAt(gx, gy));
           candidates_.push_back(seed);
+        }
       if (again)
         continue;
     }

@@ -96,6 +96,7 @@ struct Candidate
   int peak_x = -1, peak_y = -1;  // strongest pixel (full-resolution blobs; centre of the cell)
   int blob = -1;                 // index in the blobs (full-resolution candidates)
   bool seed = false;             // a further local maximum of a blob (see BlobSplitter)
+  double significance = 0;       // noise sigmas of its peak (FramePlanes::significance): the ranking
 };
 
 // Stage 3a. The blobs worth refining (enough pixels, a strong enough peak).
@@ -109,7 +110,8 @@ void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, cons
 class CoarseCandidates
 {
 public:
-  // Appends the coarse candidates; returns how many.
+  // Appends the coarse candidates (bins at or above `threshold`, or the
+  // planes' coarse thresholds on the local path); returns how many.
   int add(const cv::Mat& coarse, int threshold, double max_sigma_px, const FramePlanes& planes,
           std::vector<Candidate>* candidates);
 
