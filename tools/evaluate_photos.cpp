@@ -9,7 +9,7 @@
 //   evaluate_photos --photos DIR [--labels DIR] [--half tuning|heldout|all]
 //                   [--projector-color green|red|blue|nir|white] [--method fast|baseline]
 //                   [--param NAME=VALUE]... [--tolerance PX] [--only NAME[,NAME...]]
-//                   [--overlay DIR] [--list-spots]
+//                   [--overlay DIR] [--list-spots] [--why]
 //
 // --photos: the folder the labels' `image:` paths are relative to (the
 // photographs are not in the repository; README says how to fetch them).
@@ -24,7 +24,10 @@
 // wide). --only: run these label names only. --overlay DIR: writes
 // DIR/<name>.png, the photo with the labels as green circles, the spots as red
 // crosses (matched ones yellow), regions of interest cyan and ignored
-// rectangles grey. --list-spots: prints every spot with its match.
+// rectangles grey. --list-spots: prints every spot with its match. --why:
+// per image the detector's candidates and why it dropped the rest (its
+// SpotDetectorDebug: the reasons, counted, and how many dropped candidates lay
+// within the tolerance of a labelled dot).
 //
 // Label file (YAML, one per image): image, encoding (bgr8 | rgb8 | mono8 |
 // mono16; the file is converted to it), projector_color, half, optional
@@ -33,6 +36,7 @@
 // (neither counted inside), optional tolerance_px, dots [[x, y], ...] in
 // pixels, OpenCV convention (pixel centres at integers).
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -69,7 +73,7 @@ struct Options
   std::vector<std::string> params, only;
   std::string method;
   double tolerance = 3.0;
-  bool list_spots = false;
+  bool list_spots = false, why = false;
 };
 
 void usage()
@@ -77,7 +81,7 @@ void usage()
   std::fprintf(stderr,
                "usage: evaluate_photos --photos DIR [--labels DIR] [--half tuning|heldout|all]\n"
                "                       [--projector-color C] [--method fast|baseline] [--param NAME=VALUE]...\n"
-               "                       [--tolerance PX] [--only NAME[,NAME...]] [--overlay DIR] [--list-spots]\n");
+               "                       [--tolerance PX] [--only NAME[,NAME...]] [--overlay DIR] [--list-spots] [--why]\n");
 }
 
 std::vector<cv::Rect2d> rects(const YAML::Node& node)
@@ -236,9 +240,9 @@ int main(int argc, char** argv)
   for (int i = 1; i < argc; ++i)
   {
     const std::string k = argv[i];
-    if (k == "--list-spots")
+    if (k == "--list-spots" || k == "--why")
     {
-      o.list_spots = true;
+      (k == "--why" ? o.why : o.list_spots) = true;
       continue;
     }
     if (k == "-h" || k == "--help")
@@ -332,6 +336,11 @@ int main(int argc, char** argv)
               o.projector_color.c_str());
   for (const std::string& p : o.params)
     std::printf("evaluate_photos: --param %s\n", p.c_str());
+  {
+    SpotDetectorParams check = base;  // the detector sanitizes its parameters: say what it changes
+    for (const std::string& c : check.sanitize())
+      std::printf("evaluate_photos: the detector changes a parameter: %s\n", c.c_str());
+  }
   std::printf("%-30s %-7s %-6s %-6s %5s %5s %5s %7s %7s %6s %8s\n", "image", "half", "enc", "color", "label", "spots",
               "match", "recall", "precis", "rms_px", "ms");
 
@@ -376,7 +385,8 @@ int main(int argc, char** argv)
     }
     SpotDetector detector(p);
     const auto t0 = std::chrono::steady_clock::now();
-    const SpotDetectionResult result = detector.detect(image, format);
+    SpotDetectorDebug debug;
+    const SpotDetectionResult result = detector.detect(image, format, o.why ? &debug : nullptr);
     const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     // A refused frame is a detector failure on a real photo: it counts, with
     // no spots.
@@ -416,6 +426,46 @@ int main(int argc, char** argv)
       for (size_t i = 0; i < spots.size(); ++i)
         std::printf("  spot %8.2f %8.2f area %7.1f %s\n", spots[i].x, spots[i].y, spots[i].area,
                     match[i] >= 0 ? "matched" : "unmatched");
+    if (o.why)
+    {
+      // Reasons counted with their numbers left out ("sigma N px out of
+      // range"); "near a dot": dropped within the tolerance of a label.
+      auto kind = [](const std::string& s) {
+        std::string k;
+        for (size_t i = 0; i < s.size();)
+          if (std::isdigit(static_cast<unsigned char>(s[i])) ||
+              (s[i] == '-' && i + 1 < s.size() && std::isdigit(static_cast<unsigned char>(s[i + 1]))))
+          {
+            while (i < s.size() && (std::isdigit(static_cast<unsigned char>(s[i])) || s[i] == '.' || s[i] == '-' ||
+                                    s[i] == 'e'))
+              ++i;
+            k += 'N';
+          }
+          else
+            k += s[i++];
+        return k;
+      };
+      std::vector<std::pair<std::string, std::pair<int, int>>> reasons;
+      for (const auto& rej : debug.rejected)
+      {
+        if (!counted(l, rej.x, rej.y))
+          continue;
+        const SpotDetectorDebug::Rejection r{rej.x, rej.y, kind(rej.reason)};
+        const bool near = std::any_of(dots.begin(), dots.end(),
+                                      [&](const cv::Point2d& d) { return std::hypot(d.x - r.x, d.y - r.y) <= tol; });
+        auto it = std::find_if(reasons.begin(), reasons.end(), [&](const auto& e) { return e.first == r.reason; });
+        if (it == reasons.end())
+          it = reasons.insert(reasons.end(), {r.reason, {0, 0}});
+        ++it->second.first;
+        it->second.second += near;
+      }
+      std::sort(reasons.begin(), reasons.end(),
+                [](const auto& a, const auto& b) { return a.second.first > b.second.first; });
+      std::printf("  candidates %d (coarse %d), fitted %d; dropped in the labelled part:%s\n", debug.candidates,
+                  debug.coarse_candidates, debug.fitted, reasons.empty() ? " none" : "");
+      for (const auto& e : reasons)
+        std::printf("    %5d (%d near a dot) %s\n", e.second.first, e.second.second, e.first.c_str());
+    }
     ++images;
     n_labels += static_cast<long>(dots.size());
     n_spots += static_cast<long>(spots.size());
