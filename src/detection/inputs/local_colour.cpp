@@ -75,6 +75,9 @@ const int* rowOf(const cv::Mat& image, PixelFormat format, int gy, int cols, std
     return nullptr;
   scratch->resize(3 * static_cast<size_t>(cols));
   pixels::decodeRow(image, format, gy, cols, scratch->data());
+  if (format == PixelFormat::kMono16)  // in DN, as the colour formats
+    for (int& v : *scratch)
+      v = pixels::dn16(v);
   return scratch->data();
 }
 
@@ -265,11 +268,16 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   // A Bayer cell averages two green samples and holds one red and one blue.
   const double cell_var[3] = {1.0, scale_ == 2 ? 0.5 : 1.0, 1.0};
 
-  // The projector's colour as the camera sees it, signal channel = 1.
-  std::array<double, 3> pc{{0, 0, 0}};
-  pc[model_.signal] = 1.0;
-  pc[model_.reference] = model_.led_reference;
-  pc[model_.third] = model_.led_third;
+  // The projector's colour as the camera sees it, signal channel = 1; the
+  // intensity path (mono frames, nir and white projectors): grey, and the
+  // rock is told from the dots by the band-pass alone.
+  std::array<double, 3> pc{{1.0, 1.0, 1.0}};
+  if (model_.colour)
+  {
+    pc[model_.signal] = 1.0;
+    pc[model_.reference] = model_.led_reference;
+    pc[model_.third] = model_.led_third;
+  }
 
   // Each block's mean colour and its excess along the projector's colour over
   // the frame's typical rock (what ranks the blocks around a block).
@@ -467,7 +475,7 @@ void FramePlanes::buildLocalColour(const FastParams& p)
 
 double FramePlanes::significance(int gx, int gy, double score) const
 {
-  if (localPath())
+  if (localPath() || (!model_.colour && !matchedPath()))
   {
     const int by = std::min(std::max(gy, 0), grid_rows_ - 1) / kBlock;
     const int bx = std::min(std::max(gx, 0), grid_cols_ - 1) / kBlock;

@@ -68,17 +68,17 @@ void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat
   matched_.release();
   matched_noise_ = MatchedNoise();
   local_ = false;
-  if (!model_.colour)
-    buildIntensityMaps(p);
-  else if (!ambient_.empty() && p.matched_sigma_px > 0.0 && grid_cols_ > 0 && grid_rows_ > 0)
-    buildMatchedScores(p, fixed && fixed->valid ? fixed : nullptr);
-  else if (ambient_.empty() && p.local_colour && grid_cols_ > 0 && grid_rows_ > 0)
+  if (ambient_.empty() && p.local_colour && grid_cols_ > 0 && grid_rows_ > 0)
   {
     local_ = true;
     local_row_ = -1;
     unit_ = 16;
     buildLocalColour(p);
   }
+  else if (!model_.colour)
+    buildIntensityMaps(p);
+  else if (!ambient_.empty() && p.matched_sigma_px > 0.0 && grid_cols_ > 0 && grid_rows_ > 0)
+    buildMatchedScores(p, fixed && fixed->valid ? fixed : nullptr);
 }
 
 // The difference's colour score smoothed by the dot's matched filter, and
@@ -476,12 +476,18 @@ void FramePlanes::buildIntensityMaps(const FastParams& p)
   block_level_ = filter3x3(filter3x3(mean, true), false);
   noise = filter3x3(noise, true);
   block_threshold_.create(br, bc, CV_32S);
+  block_peak_.create(br, bc, CV_32S);
+  block_sigma_.create(br, bc, CV_32F);
   const int floor16 = 16 * p.mono_threshold;
   for (int y = 0; y < br; ++y)
     for (int x = 0; x < bc; ++x)
     {
-      const double n = std::min(noise.at<int>(y, x), 16 * 255);
+      // At least the 8-bit quantisation's noise (1/16 DN units).
+      const double n = std::max(16.0 * 0.29, static_cast<double>(std::min(noise.at<int>(y, x), 16 * 255)));
+      block_sigma_.at<float>(y, x) = static_cast<float>(n);
       block_threshold_.at<int>(y, x) = std::max(floor16, static_cast<int>(std::ceil(p.intensity_snr * n)));
+      // A blob's peak: peak_snr local sigmas over the background.
+      block_peak_.at<int>(y, x) = std::max(16, static_cast<int>(std::ceil(p.peak_snr * n)));
     }
 }
 

@@ -147,7 +147,7 @@ public:
   // block, else peakThreshold().
   int peakThresholdAt(int gx, int gy, int min_peak) const
   {
-    if (!localPath())
+    if (!localPath() && (model_.colour || matchedPath()))
       return peakThreshold(min_peak);
     return block_peak_.at<int>(std::min(std::max(gy, 0), grid_rows_ - 1) / kBlock,
                                std::min(std::max(gx, 0), grid_cols_ - 1) / kBlock);
