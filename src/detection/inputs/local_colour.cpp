@@ -268,9 +268,10 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   // A Bayer cell averages two green samples and holds one red and one blue.
   const double cell_var[3] = {1.0, scale_ == 2 ? 0.5 : 1.0, 1.0};
 
-  // The projector's colour as the camera sees it, signal channel = 1; the
-  // intensity path (mono frames, nir and white projectors): grey, and the
-  // rock is told from the dots by the band-pass alone.
+  // The projector's colour as the camera sees it, signal channel = 1: the
+  // camera's response to a narrowband source, whatever the rock reflects of
+  // it. The intensity path (mono frames, nir and white projectors): grey,
+  // and the rock is told from the dots by the band-pass alone.
   std::array<double, 3> pc{{1.0, 1.0, 1.0}};
   if (model_.colour)
   {
@@ -300,14 +301,21 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   for (int c = 0; c < 3; ++c)
     if (!chroma[c].empty())
       typical[c] = detail::medianInPlace(chroma[c].begin(), chroma[c].end());
+  // The excess is along the projector's colour away from the typical rock's
+  // (relative to the block's brightness); where the two are alike (a grey
+  // projector, dark rock) it is the brightness along the projector's colour:
+  // the dots only add to either.
   std::array<double, 3> q_typical{{0, 0, 0}};
   const bool typical_ok = localProjection(typical, pc, {{1.0, 1.0, 1.0}}, &q_typical);
+  const double pp = pc[0] * pc[0] + pc[1] * pc[1] + pc[2] * pc[2];
   std::vector<double> excess(nb, 0.0);
   for (size_t i = 0; i < nb; ++i)
   {
     const double total = mean[i][0] + mean[i][1] + mean[i][2];
-    if (typical_ok && total > 0)
+    if (typical_ok && total > 3.0)
       excess[i] = (q_typical[0] * mean[i][0] + q_typical[1] * mean[i][1] + q_typical[2] * mean[i][2]) / total;
+    else if (!typical_ok)
+      excess[i] = (pc[0] * mean[i][0] + pc[1] * mean[i][1] + pc[2] * mean[i][2]) / pp;
   }
 
   // Per block: the rock's local colour, the projection q (1/256) and the
@@ -333,10 +341,20 @@ void FramePlanes::buildLocalColour(const FastParams& p)
         for (int c = 0; c < 3; ++c)
           k[c] += mean[around[j].second][c];
       std::array<double, 3> w;
+      double k_level = 0, w_level = 0;
       for (int c = 0; c < 3; ++c)
+      {
         w[c] = cell_var[c] * noise.variance(mean[i][c]);
+        k_level += k[c] / half;
+        w_level += w[c];
+      }
       std::array<double, 3> q;
-      if (!localProjection(k, pc, w, &q))
+      // Rock too dark to show its colour above the noise (by night): nothing
+      // to cancel, the brightness along the projector's colour.
+      const bool dark = k_level * k_level < 9.0 * w_level;
+      // A broadband projector's light (white; an NIR one on a mono camera) is
+      // reflected in the rock's own colour: only its brightness tells it.
+      if (!model_.colour || dark || !localProjection(k, pc, w, &q))
       {
         // The rock has the projector's colour: its brightness alone (the
         // band-pass below takes off its level; its texture counts as noise).
@@ -364,6 +382,7 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   std::vector<int64_t> bin_sum(static_cast<size_t>(bins_x) * bins_y, 0), bin_sq(bin_sum.size(), 0);
   std::vector<int> bin_count(bin_sum.size(), 0);
   std::vector<int> scratch;
+  std::vector<cv::Point> clipped;
   for (int gy = 0; gy < grid_rows_; ++gy)
   {
     bool bgr8 = false;
@@ -384,6 +403,11 @@ void FramePlanes::buildLocalColour(const FastParams& p)
         for (int gx = x0; gx < x1; ++gx)
           out[gx] = static_cast<int16_t>((q0 * row[3 * gx] + q1 * row[3 * gx + 1] + q2 * row[3 * gx + 2] + 128) >> 8);
     }
+    // Cells whose signal channel is clipped (below).
+    const int signal = model_.colour ? model_.signal : 1;
+    for (int gx = 0; gx < grid_cols_; ++gx)
+      if ((bgr8 ? px[3 * gx + 2 - signal] : row[3 * gx + signal]) >= p.saturation_level)
+        clipped.emplace_back(gx, gy);
     for (int gx = 0; gx < grid_cols_; gx += kBin)
     {
       int s = 0;
@@ -453,8 +477,11 @@ void FramePlanes::buildLocalColour(const FastParams& p)
     for (int bx = 0; bx < bc; ++bx)
     {
       const size_t i = static_cast<size_t>(by) * bc + bx;
-      const double sigma = std::max({model_sigma[i], median3x3(within, br, bc, by, bx), 0.1 * kUnit});
-      bin_sigma[i] = std::max(model_sigma[i] / kBin, median3x3(between, br, bc, by, bx));
+      // The rock's texture at the bins' scale shows in the bins' spread; a
+      // dot must stand out of it as out of the noise.
+      const double spread = median3x3(between, br, bc, by, bx);
+      const double sigma = std::max({model_sigma[i], median3x3(within, br, bc, by, bx), spread, 0.1 * kUnit});
+      bin_sigma[i] = std::max(model_sigma[i] / kBin, spread);
       block_sigma_.at<float>(by, bx) = static_cast<float>(sigma);
       block_threshold_.at<int>(by, bx) = std::max(1, static_cast<int>(std::ceil(p.candidate_snr * sigma)));
       block_peak_.at<int>(by, bx) = std::max(1, static_cast<int>(std::ceil(p.peak_snr * sigma)));
@@ -470,7 +497,27 @@ void FramePlanes::buildLocalColour(const FastParams& p)
         coarse_threshold_.at<uint8_t>(y, x) = static_cast<uint8_t>(std::min(
             255.0, std::max(1.0, std::ceil(p.peak_snr * bin_sigma[static_cast<size_t>(by) * bc + bx]))));
     }
+  // A clipped cell's colour says nothing (a clipped core is white whatever the
+  // projector's colour): it is a candidate cell, so that a clipped dot is one
+  // blob with its flanks, but no peak (those come from unclipped cells).
+  for (const cv::Point& c : clipped)
+  {
+    int16_t& v = local_scores_.at<int16_t>(c.y, c.x);
+    v = static_cast<int16_t>(std::min(32767, std::max<int>(v, bin_threshold_.at<int>(c.y / kBin, c.x / kBin))));
+  }
   lap("thresholds");
+  if (const char* dump = std::getenv("SLS_DUMP_LOCAL"))
+  {
+    cv::Mat band(grid_rows_, grid_cols_, CV_32F), thr(grid_rows_, grid_cols_, CV_32F);
+    for (int gy = 0; gy < grid_rows_; ++gy)
+      for (int gx = 0; gx < grid_cols_; ++gx)
+      {
+        band.at<float>(gy, gx) = localScore(gx, gy);
+        thr.at<float>(gy, gx) = bin_threshold_.at<int>(gy / 4, gx / 4) - local_background_.at<int16_t>(gy / 4, gx / 4);
+      }
+    cv::FileStorage fs(dump, cv::FileStorage::WRITE);
+    fs << "band" << band << "thr" << thr << "peak" << block_peak_ << "sigma" << block_sigma_;
+  }
 }
 
 double FramePlanes::significance(int gx, int gy, double score) const
