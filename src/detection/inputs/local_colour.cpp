@@ -10,9 +10,10 @@
 // (a dot scores its strength in DN of the projector's signal channel), the q
 // of least noise: q = W^-1 A^T (A W^-1 A^T)^-1 (0, 1) with A = (k; p) and W
 // the channels' noise variances. Nothing is assumed of the rock's colour: k
-// is measured per block of kBlock x kBlock cells from the 5 x 5 blocks
+// is measured per block of kBlock x kBlock cells from the 3 x 3 blocks
 // around, the half of them that the projector's colour explains least (a dot
-// only adds that colour; the rock's own colour varies both ways).
+// only adds that colour; the rock's own colour varies both ways; a dot
+// touches at most 4 of the 9).
 //
 // What the rock's local colour leaves over areas wider than a dot (its colour
 // texture, shading of another hue) is taken off with a band-pass: the score's
@@ -142,52 +143,48 @@ struct NoiseModel
 };
 
 // Lower envelope of the blocks' (level, difference variance) per channel,
-// pooled: in each of 8 level bins the 10th percentile of the variance, then a
-// least-squares line through the bins' points with non-negative terms.
+// pooled: in each of 8 level bins of 32 DN the 10th percentile of the
+// variance, then a least-squares line through the bins' points with
+// non-negative terms.
 NoiseModel estimateNoise(const std::vector<BlockSums>& blocks)
 {
-  std::vector<std::pair<double, double>> points;  // level, variance
-  points.reserve(3 * blocks.size());
+  constexpr int kBins = 8;
+  std::vector<double> var[kBins];
+  double level_sum[kBins] = {0};
   for (const BlockSums& b : blocks)
     for (int c = 0; c < 3; ++c)
       if (b.count > 0 && b.diff_count > 0)
       {
         const double level = static_cast<double>(b.sum[c]) / b.count;
+        if (!(level > 1.0 && level < 240.0))  // clipped blocks say nothing of the noise
+          continue;
         const double sigma = kDiffToSigma * static_cast<double>(b.abs_diff[c]) / b.diff_count;
-        if (level > 1.0 && level < 240.0)  // clipped blocks say nothing of the noise
-          points.emplace_back(level, sigma * sigma);
+        const int k = std::min(kBins - 1, static_cast<int>(level / 32.0));
+        var[k].push_back(sigma * sigma);
+        level_sum[k] += level;
       }
   NoiseModel m;
   m.read2 = 1.0 / 12.0;  // the 8-bit quantisation's
-  if (points.size() < 16)
-    return m;
-  std::sort(points.begin(), points.end());
-  constexpr int kBins = 8;
   double sx = 0, sy = 0, sxx = 0, sxy = 0, n = 0;
-  std::vector<double> v;
   for (int k = 0; k < kBins; ++k)
   {
-    const size_t a = points.size() * k / kBins, e = points.size() * (k + 1) / kBins;
-    if (e - a < 4)
+    std::vector<double>& v = var[k];
+    if (v.size() < 8)
       continue;
-    v.clear();
-    double level = 0;
-    for (size_t i = a; i < e; ++i)
-    {
-      v.push_back(points[i].second);
-      level += points[i].first;
-    }
+    const double x = level_sum[k] / v.size();
     std::nth_element(v.begin(), v.begin() + v.size() / 10, v.end());
-    const double x = level / (e - a), y = v[v.size() / 10];
+    const double y = v[v.size() / 10];
     sx += x;
     sy += y;
     sxx += x * x;
     sxy += x * y;
     n += 1;
   }
+  if (n < 1)
+    return m;
   const double det = n * sxx - sx * sx;
-  const double b = det > 0 ? std::max(0.0, (n * sxy - sx * sy) / det) : 0.0;
-  const double a = n > 0 ? std::max(0.0, (sy - b * sx) / n) : 0.0;
+  const double b = det > 1e-9 ? std::max(0.0, (n * sxy - sx * sy) / det) : 0.0;
+  const double a = std::max(0.0, (sy - b * sx) / n);
   m.read2 = std::max(a, m.read2);
   m.gain = b;
   return m;
@@ -213,6 +210,39 @@ bool localProjection(const std::array<double, 3>& k, const std::array<double, 3>
   for (int c = 0; c < 3; ++c)
     (*q)[c] = (a * k[c] + b * p[c]) / w[c];
   return true;
+}
+
+// One row's raw scores (q of each block, 1/256) and its bins' sums of scores
+// and of their squares. Stride: 3 for interleaved r, g, b ints (decoded) or
+// bgr8 bytes (Bgr8).
+template <bool Bgr8, typename T>
+void scoreLocalRow(const T* in, int cols, int block, const std::array<int, 3>* q, int16_t* out, int64_t* bin_sum,
+              int64_t* bin_sq)
+{
+  constexpr int kR = Bgr8 ? 2 : 0, kB = Bgr8 ? 0 : 2;
+  for (int x0 = 0, bx = 0; x0 < cols; x0 += block, ++bx)
+  {
+    const int q0 = q[bx][0], q1 = q[bx][1], q2 = q[bx][2];
+    const int x1 = std::min(cols, x0 + block);
+    const T* v = in + 3 * x0;
+    for (int x = x0; x < x1; ++x, v += 3)
+      out[x] = static_cast<int16_t>((q0 * static_cast<int>(v[kR]) + q1 * static_cast<int>(v[1]) +
+                                     q2 * static_cast<int>(v[kB]) + 128) >> 8);
+  }
+  for (int x = 0; x < cols; x += kBin)
+  {
+    const int e = std::min(cols, x + kBin);
+    int sum = 0;
+    int64_t sq = 0;
+    for (int k = x; k < e; ++k)
+    {
+      const int sc = out[k];
+      sum += sc;
+      sq += sc * sc;
+    }
+    bin_sum[x / kBin] += sum;
+    bin_sq[x / kBin] += sq;
+  }
 }
 
 // The median of the 3 x 3 entries of m (rows x cols, row-major) around (y, x).
@@ -322,14 +352,14 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   // sensor's noise of q . v (DN).
   std::vector<std::array<int, 3>> q_fixed(nb);
   std::vector<double> model_sigma(nb);
-  std::pair<double, size_t> around[25];
+  std::pair<double, size_t> around[9];
   for (int by = 0; by < br; ++by)
     for (int bx = 0; bx < bc; ++bx)
     {
       const size_t i = static_cast<size_t>(by) * bc + bx;
       int n = 0;
-      for (int y = std::max(0, by - 2); y <= std::min(br - 1, by + 2); ++y)
-        for (int x = std::max(0, bx - 2); x <= std::min(bc - 1, bx + 2); ++x)
+      for (int y = std::max(0, by - 1); y <= std::min(br - 1, by + 1); ++y)
+        for (int x = std::max(0, bx - 1); x <= std::min(bc - 1, bx + 1); ++x)
         {
           const size_t j = static_cast<size_t>(y) * bc + x;
           around[n++] = {excess[j], j};
@@ -391,50 +421,46 @@ void FramePlanes::buildLocalColour(const FastParams& p)
     int16_t* out = local_scores_.ptr<int16_t>(gy);
     const size_t line = static_cast<size_t>(gy / kBlock) * bc;
     const size_t bin_line = static_cast<size_t>(gy / kBin) * bins_x;
-    for (int x0 = 0, bx = 0; x0 < grid_cols_; x0 += kBlock, ++bx)
-    {
-      // |q| < 7 (clamped where it is made): the sums stay in 16 bits after the shift.
-      const int q0 = q_fixed[line + bx][0], q1 = q_fixed[line + bx][1], q2 = q_fixed[line + bx][2];
-      const int x1 = std::min(grid_cols_, x0 + kBlock);
-      if (bgr8)
-        for (int gx = x0; gx < x1; ++gx)
-          out[gx] = static_cast<int16_t>((q0 * px[3 * gx + 2] + q1 * px[3 * gx + 1] + q2 * px[3 * gx] + 128) >> 8);
-      else
-        for (int gx = x0; gx < x1; ++gx)
-          out[gx] = static_cast<int16_t>((q0 * row[3 * gx] + q1 * row[3 * gx + 1] + q2 * row[3 * gx + 2] + 128) >> 8);
-    }
+    const std::array<int, 3>* q = &q_fixed[line];
+    if (bgr8)
+      scoreLocalRow<true>(px, grid_cols_, kBlock, q, out, &bin_sum[bin_line], &bin_sq[bin_line]);
+    else
+      scoreLocalRow<false>(row, grid_cols_, kBlock, q, out, &bin_sum[bin_line], &bin_sq[bin_line]);
+    for (int x = 0; x < grid_cols_; x += kBin)
+      bin_count[bin_line + x / kBin] += std::min(kBin, grid_cols_ - x);
     // Cells whose signal channel is clipped (below).
     const int signal = model_.colour ? model_.signal : 1;
-    for (int gx = 0; gx < grid_cols_; ++gx)
-      if ((bgr8 ? px[3 * gx + 2 - signal] : row[3 * gx + signal]) >= p.saturation_level)
-        clipped.emplace_back(gx, gy);
-    for (int gx = 0; gx < grid_cols_; gx += kBin)
+    const int channel = bgr8 ? 2 - signal : signal;
+    const int saturation = p.saturation_level;
+    if (bgr8)
     {
-      int s = 0;
-      int64_t s2 = 0;
-      const int e = std::min(grid_cols_, gx + kBin);
-      for (int x = gx; x < e; ++x)
-      {
-        s += out[x];
-        s2 += out[x] * out[x];
-      }
-      const size_t k = bin_line + gx / kBin;
-      bin_sum[k] += s;
-      bin_sq[k] += s2;
-      bin_count[k] += e - gx;
+      for (int x = 0; x < grid_cols_; ++x)
+        if (px[3 * x + channel] >= saturation)
+          clipped.emplace_back(x, gy);
+    }
+    else
+    {
+      for (int x = 0; x < grid_cols_; ++x)
+        if (row[3 * x + channel] >= saturation)
+          clipped.emplace_back(x, gy);
     }
   }
 
   lap("scores");
   // The background: an opening of the bin means.
   cv::Mat bin_mean(bins_y, bins_x, CV_32F);
-  std::vector<double> bin_var(bin_sum.size());
-  for (size_t k = 0; k < bin_sum.size(); ++k)
+  std::vector<float> bin_var(bin_sum.size());
+  for (int y = 0; y < bins_y; ++y)
   {
-    const double n = std::max(1, bin_count[k]);
-    const double m = static_cast<double>(bin_sum[k]) / n;
-    bin_mean.at<float>(static_cast<int>(k / bins_x), static_cast<int>(k % bins_x)) = static_cast<float>(m);
-    bin_var[k] = std::max(0.0, static_cast<double>(bin_sq[k]) / n - m * m);
+    float* m = bin_mean.ptr<float>(y);
+    for (int x = 0; x < bins_x; ++x)
+    {
+      const size_t k = static_cast<size_t>(y) * bins_x + x;
+      const double n = std::max(1, bin_count[k]);
+      const double mk = static_cast<double>(bin_sum[k]) / n;
+      m[x] = static_cast<float>(mk);
+      bin_var[k] = static_cast<float>(std::max(0.0, static_cast<double>(bin_sq[k]) / n - mk * mk));
+    }
   }
   const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 5));
   cv::Mat background;
@@ -448,21 +474,28 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   // absolute residual).
   const int per_block = kBlock / kBin;
   std::vector<double> within(nb, 0.0), between(nb, 0.0);
-  std::vector<double> v, a;
+  float v[kBlock / kBin * kBlock / kBin], a[kBlock / kBin * kBlock / kBin];
   for (int by = 0; by < br; ++by)
     for (int bx = 0; bx < bc; ++bx)
     {
-      v.clear();
-      a.clear();
+      int n = 0;
       for (int y = by * per_block; y < std::min(bins_y, (by + 1) * per_block); ++y)
-        for (int x = bx * per_block; x < std::min(bins_x, (bx + 1) * per_block); ++x)
+      {
+        const float* m = bin_mean.ptr<float>(y);
+        const float* bg = background.ptr<float>(y);
+        for (int x = bx * per_block; x < std::min(bins_x, (bx + 1) * per_block); ++x, ++n)
         {
-          v.push_back(bin_var[static_cast<size_t>(y) * bins_x + x]);
-          a.push_back(std::abs(bin_mean.at<float>(y, x) - background.at<float>(y, x)));
+          v[n] = bin_var[static_cast<size_t>(y) * bins_x + x];
+          a[n] = std::abs(m[x] - bg[x]);
         }
+      }
+      if (n == 0)
+        continue;
       const size_t i = static_cast<size_t>(by) * bc + bx;
-      within[i] = v.empty() ? 0.0 : std::sqrt(detail::medianInPlace(v.begin(), v.end()));
-      between[i] = a.empty() ? 0.0 : 1.4826 * detail::medianInPlace(a.begin(), a.end());
+      std::nth_element(v, v + n / 2, v + n);
+      std::nth_element(a, a + n / 2, a + n);
+      within[i] = std::sqrt(v[n / 2]);
+      between[i] = 1.4826 * a[n / 2];
     }
 
   lap("spread");
@@ -489,14 +522,21 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   bin_threshold_.create(bins_y, bins_x, CV_32S);
   coarse_threshold_.create(grid_rows_ / kBin, grid_cols_ / kBin, CV_8U);
   for (int y = 0; y < bins_y; ++y)
+  {
+    const int by = y / per_block;
+    const int* cell_thr = block_threshold_.ptr<int>(by);
+    const int16_t* bg = local_background_.ptr<int16_t>(y);
+    int* thr = bin_threshold_.ptr<int>(y);
+    uint8_t* coarse = y < coarse_threshold_.rows ? coarse_threshold_.ptr<uint8_t>(y) : nullptr;
     for (int x = 0; x < bins_x; ++x)
     {
-      const int by = y / per_block, bx = x / per_block;
-      bin_threshold_.at<int>(y, x) = block_threshold_.at<int>(by, bx) + local_background_.at<int16_t>(y, x);
-      if (y < coarse_threshold_.rows && x < coarse_threshold_.cols)
-        coarse_threshold_.at<uint8_t>(y, x) = static_cast<uint8_t>(std::min(
-            255.0, std::max(1.0, std::ceil(p.peak_snr * bin_sigma[static_cast<size_t>(by) * bc + bx]))));
+      const int bx = x / per_block;
+      thr[x] = cell_thr[bx] + bg[x];
+      if (coarse && x < coarse_threshold_.cols)
+        coarse[x] = static_cast<uint8_t>(
+            std::min(255.0, std::max(1.0, std::ceil(p.peak_snr * bin_sigma[static_cast<size_t>(by) * bc + bx]))));
     }
+  }
   // A clipped cell's colour says nothing (a clipped core is white whatever the
   // projector's colour): it is a candidate cell, so that a clipped dot is one
   // blob with its flanks, but no peak (those come from unclipped cells).
