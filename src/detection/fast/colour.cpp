@@ -34,6 +34,10 @@ struct RingColour
   cv::Vec3d plane[3];  // (a, bx, by) per channel
   double k_sig = 0, k_third = 0;
   double ref_spread = 0;
+  // Spread of the texture-free signal and third (channel - k reference)
+  // about their planes: what the rock's own colour texture, and the shading
+  // of its facets in another hue, leave in the texture-free ratio.
+  double free_sig_spread = 0, free_third_spread = 0;
   double at(int c, int dx, int dy) const { return plane[c][0] + plane[c][1] * dx + plane[c][2] * dy; }
 };
 
@@ -98,9 +102,18 @@ RingColour ringColour(const PlaneWindow& w)
     ring.k_sig = std::min(4.0, std::max(0.0, sr / rr));
     ring.k_third = std::min(4.0, std::max(0.0, tr / rr));
   }
-  double spread = 0;
-  forBorderSamples(w, [&](int dx, int dy, int i) { spread += detail::square(w.reference[i] - ring.at(kRef, dx, dy)); });
+  double spread = 0, fs = 0, ft = 0;
+  forBorderSamples(w,
+                   [&](int dx, int dy, int i)
+                   {
+                     const double r = w.reference[i] - ring.at(kRef, dx, dy);
+                     spread += detail::square(r);
+                     fs += detail::square(w.signal[i] - ring.at(kSig, dx, dy) - ring.k_sig * r);
+                     ft += detail::square(w.third[i] - ring.at(kThird, dx, dy) - ring.k_third * r);
+                   });
   ring.ref_spread = n ? std::sqrt(spread / n) : 0.0;
+  ring.free_sig_spread = n ? std::sqrt(fs / n) : 0.0;
+  ring.free_third_spread = n ? std::sqrt(ft / n) : 0.0;
   return ring;
 }
 
@@ -242,6 +255,10 @@ void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit)
   const double expected =
       (model.led_third - ring.k_third * model.led_reference) / std::max(0.1, 1.0 - ring.k_sig * model.led_reference);
   fit->blue_ratio = e.free_third / e.free_sig - expected + model.led_third;
+  // The same reasoning for the texture-free ratio: what the border's
+  // texture-free spread can move it by (first order in both sums).
+  fit->blue_slack =
+      e.sum_w * (ring.free_third_spread + std::abs(fit->blue_ratio) * ring.free_sig_spread) / e.free_sig;
 }
 
 }  // namespace fast_detector

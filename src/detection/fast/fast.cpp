@@ -110,6 +110,8 @@ RefineSettings refineSettings(const FastParams& p)
   rs.subtract_texture = p.subtract_rock_texture;
   rs.normalise_albedo = p.normalise_albedo;
   rs.albedo_floor_dn = p.albedo_floor_dn;
+  rs.plain_radius = p.plain_radius;
+  rs.albedo_plane = p.albedo_plane;
   return rs;
 }
 
@@ -149,7 +151,16 @@ std::string colourRejection(const SpotFit& r, const ColourTestParams& p, const C
   // A spot on a pedestal is suspect: the pedestal is often an olive or
   // yellow mineral, whose own red shows up as extra red excess.
   red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - led_ref) > p.max_chroma_error);
-  if (!std::isfinite(r.blue_ratio) || red_bad || std::abs(r.blue_ratio - led_third) > p.max_chroma_error)
+  // The third: a tolerance of the projector's own, plus what the border's
+  // texture could have moved the ratio by (facets shaded in another hue,
+  // grains of another colour, a demosaicked edge).
+  // No excess over the border's planes at all (NaN): the border does not
+  // describe the rock under the dot (a dot in a cast shadow between sunlit
+  // facets): its colour is not measured here, the candidate's score (the
+  // projector's colour against the rock around it) stands.
+  if (!std::isfinite(r.blue_ratio))
+    return std::string();
+  if (red_bad || std::abs(r.blue_ratio - led_third) > p.max_chroma_error + r.blue_slack)
     return "colour: reference/signal " + std::to_string(r.red_ratio) + ", third/signal " + std::to_string(r.blue_ratio);
   return std::string();
 }

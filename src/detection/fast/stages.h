@@ -173,6 +173,7 @@ struct SpotFit
   // relative to the signal's ("red" and "blue" for a green projector).
   double red_ratio = 0, blue_ratio = 0;
   double red_slack = 0;      // how far texture alone could move the reference ratio
+  double blue_slack = 0;     // and the texture-free third ratio
   double background = 0;     // local background level of the signal (DN)
   double noise = 0;          // robust spread of the window's border about its background plane (DN)
   bool on_pedestal = false;  // found by the small-window retry
@@ -192,6 +193,8 @@ struct RefineSettings
   bool subtract_texture = true;  // colour frames: signal - (a reference + b third), the rock's mix
   bool normalise_albedo = true;
   double albedo_floor_dn = 1.0;
+  double plain_radius = 0.0;  // > 0: the final centroid is the plain moment in a disc of this many sigmas
+  bool albedo_plane = false;  // normalise by the ambient's plane over the window, not each pixel's
 };
 
 // The weight field of one window: the dot's added light over the rock,
