@@ -207,8 +207,17 @@ std::vector<char> markDuplicates(const std::vector<KeptSpot>& kept)
   std::vector<size_t> order(kept.size());
   for (size_t i = 0; i < order.size(); ++i)
     order[i] = i;
+  // A spot whose colour was measured and is the projector's goes before one
+  // whose colour could not be measured (a streak's fragment next to a dot),
+  // then the brighter.
+  const auto measured = [&](size_t i) { return std::isfinite(kept[i].fit.blue_ratio) || kept[i].fit.clipped; };
   std::sort(order.begin(), order.end(),
-            [&](size_t a, size_t b) { return kept[a].fit.amplitude > kept[b].fit.amplitude; });
+            [&](size_t a, size_t b)
+            {
+              if (measured(a) != measured(b))
+                return measured(a);
+              return kept[a].fit.amplitude > kept[b].fit.amplitude;
+            });
   std::vector<char> drop(kept.size(), 0);
   for (size_t i = 0; i < order.size(); ++i)
   {

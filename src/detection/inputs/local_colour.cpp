@@ -10,10 +10,10 @@
 // (a dot scores its strength in DN of the projector's signal channel), the q
 // of least noise: q = W^-1 A^T (A W^-1 A^T)^-1 (0, 1) with A = (k; p) and W
 // the channels' noise variances. Nothing is assumed of the rock's colour: k
-// is measured per block of kBlock x kBlock cells from the 3 x 3 blocks
+// is measured per block of kBlock x kBlock cells from the 5 x 5 blocks
 // around, the half of them that the projector's colour explains least (a dot
 // only adds that colour; the rock's own colour varies both ways; a dot
-// touches at most 4 of the 9).
+// touches at most 4 of them, a bloom streak along a column 5).
 //
 // What the rock's local colour leaves over areas wider than a dot (its colour
 // texture, shading of another hue) is taken off with a band-pass: the score's
@@ -352,14 +352,15 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   // sensor's noise of q . v (DN).
   std::vector<std::array<int, 3>> q_fixed(nb);
   std::vector<double> model_sigma(nb);
-  std::pair<double, size_t> around[9];
+  constexpr int kAround = 2;  // 5 x 5 blocks: long bloom streaks cover fewer of them than of 3 x 3
+  std::pair<double, size_t> around[25];
   for (int by = 0; by < br; ++by)
     for (int bx = 0; bx < bc; ++bx)
     {
       const size_t i = static_cast<size_t>(by) * bc + bx;
       int n = 0;
-      for (int y = std::max(0, by - 1); y <= std::min(br - 1, by + 1); ++y)
-        for (int x = std::max(0, bx - 1); x <= std::min(bc - 1, bx + 1); ++x)
+      for (int y = std::max(0, by - kAround); y <= std::min(br - 1, by + kAround); ++y)
+        for (int x = std::max(0, bx - kAround); x <= std::min(bc - 1, bx + kAround); ++x)
         {
           const size_t j = static_cast<size_t>(y) * bc + x;
           around[n++] = {excess[j], j};
