@@ -147,9 +147,6 @@ void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, cons
   for (size_t i = 0; i < blobs.size(); ++i)
   {
     const Blob& b = blobs[i];
-    if (std::getenv("SLS_DEBUG_BLOBS") && b.count >= 8)
-      std::fprintf(stderr, "blob %zu count %d peak %d thr %d sum %.0f at %d %d\n", i, b.count, b.peak,
-                   planes.peakThresholdAt(b.peak_x, b.peak_y, p.min_peak), b.sum, b.peak_x, b.peak_y);
     if (b.count < min_count || b.peak < planes.peakThresholdAt(b.peak_x, b.peak_y, p.min_peak) || !(b.sum > 0))
       continue;  // noise: not worth a line in the debug output
     // First guess of sigma from the candidate area: a Gaussian exceeds a

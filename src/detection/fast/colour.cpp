@@ -252,7 +252,7 @@ Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour
 // (led_third - k_third led_ref) / (1 - k_sig led_ref) for a dot, mapped back
 // to led_third for the comparison. With an ambient frame both are plain
 // ratios of frame - ambient. Gaussian-weighted, unclipped samples only.
-void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit)
+void measureColour(const PlaneWindow& w, const ColourModel& model, double max_slack, SpotFit* fit)
 {
   const RingColour ring = w.ambient ? RingColour() : ringColour(w);
   const Excess e = weightedExcess(w, *fit, ring);
@@ -273,6 +273,7 @@ void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit)
   // texture-free spread can move it by (first order in both sums).
   fit->blue_slack =
       e.sum_w * (ring.free_third_spread + std::abs(fit->blue_ratio) * ring.free_sig_spread) / e.free_sig;
+  fit->blue_slack = std::min(fit->blue_slack, max_slack);
 }
 
 }  // namespace fast_detector

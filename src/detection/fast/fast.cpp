@@ -111,6 +111,7 @@ RefineSettings refineSettings(const FastParams& p)
   rs.normalise_albedo = p.normalise_albedo;
   rs.albedo_floor_dn = p.albedo_floor_dn;
   rs.plain_radius = p.plain_radius;
+  rs.plain_snr = p.plain_snr;
   rs.albedo_plane = p.albedo_plane;
   return rs;
 }
@@ -154,13 +155,10 @@ std::string colourRejection(const SpotFit& r, const ColourTestParams& p, const C
   // The third: a tolerance of the projector's own, plus what the border's
   // texture could have moved the ratio by (facets shaded in another hue,
   // grains of another colour, a demosaicked edge).
-  // No excess over the border's planes at all (NaN): the border does not
-  // describe the rock under the dot (a dot in a cast shadow between sunlit
-  // facets): its colour is not measured here, the candidate's score (the
-  // projector's colour against the rock around it) stands.
-  if (!std::isfinite(r.blue_ratio))
-    return std::string();
-  if (red_bad || std::abs(r.blue_ratio - led_third) > p.max_chroma_error + r.blue_slack)
+  // No excess over the border's planes at all (NaN): rejected (an olive
+  // mineral wider than the window; a dot in a cast shadow between sunlit
+  // facets is lost with it, measured by tools/evaluate_validation).
+  if (red_bad || !std::isfinite(r.blue_ratio) || std::abs(r.blue_ratio - led_third) > p.max_chroma_error + r.blue_slack)
     return "colour: reference/signal " + std::to_string(r.red_ratio) + ", third/signal " + std::to_string(r.blue_ratio);
   return std::string();
 }
@@ -182,7 +180,7 @@ std::string spotRejection(const FramePlanes& planes, const Candidate& c, const F
     const PlaneWindow& w = scratch->planes;
     if (w.cx != r->window.x + H || w.cy != r->window.y + H || w.H != H)
       planes.fillWindow(r->window.x + H, r->window.y + H, H, &scratch->planes);
-    measureColour(scratch->planes, planes.model(), r);
+    measureColour(scratch->planes, planes.model(), p.colour_test.max_texture_slack, r);
     std::string why = colourRejection(*r, p.colour_test, planes.model());
     if (!why.empty())
       return why;
@@ -317,7 +315,6 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const bool unrounded = !ambient.empty() && ambient.depth() == CV_32F;
   if (unrounded)
     ambient.convertTo(ambient8_, CV_8U);  // rounded and saturated (NaN -> 0)
-  StageTimer bind_timer;
   planes_.bind(image, unrounded ? ambient8_ : ambient, format, params.projector_color, p,
                in_regions_ ? &frame_noise_ : nullptr, unrounded ? ambient : cv::Mat());
   if (!in_regions_ && planes_.matchedPath())
@@ -326,8 +323,6 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
     noise_size_ = image.size();
     noise_age_ = 0;
   }
-  if (std::getenv("SLS_DEBUG_LOCAL"))
-    std::fprintf(stderr, "bind %.2f ms\n", bind_timer.lap());
   findCandidates(p, debug);
   tm.threshold_ms = threshold_ms_;
   tm.labelling_ms = timer.lap() - threshold_ms_;
@@ -378,8 +373,6 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
                       planes_.rows() >= 2 * kBin && planes_.cols() >= 2 * kBin;
   threshold_pass_.run(&planes_, coarse);
   threshold_ms_ = timer.lap();
-  if (std::getenv("SLS_DEBUG_LOCAL"))
-    std::fprintf(stderr, "threshold pass %.2f ms, %zu runs\n", threshold_ms_, threshold_pass_.runs().size());
 
   const std::vector<Blob>& blobs = labeller_.label(threshold_pass_.runs(), planes_);
   candidates_.clear();

@@ -801,11 +801,15 @@ bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, 
   }
   if (!std::isfinite(xc) || !std::isfinite(yc) || std::abs(xc - win.cx) > win.H || std::abs(yc - win.cy) > win.H)
     return false;
-  if (rs.plain_radius > 0.0)
+  // The light's own centroid where the dot stands well out of what the
+  // window's border shows of the rock: the plain first moment of the added
+  // light in a disc of plain_radius sigmas. A Gaussian weight finds the
+  // centre of a symmetric dot; the footprint of a beam on facets of the rock
+  // is not symmetric, and its plain moment is the light's centroid (where the
+  // rock's residual is small against the dot, its noise costs little).
+  const double peak = flux / std::max(1e-3, win.density) / (2.0 * M_PI * sw * sw);
+  if (rs.plain_radius > 0.0 && peak >= rs.plain_snr * std::max(win.noise, 0.5))
   {
-    // The light's own centroid: the plain first moment of the added light in
-    // a disc of plain_radius sigmas (a Gaussian weight is unbiased only for
-    // a symmetric dot; a footprint on facets is not).
     const double R = rs.plain_radius * sw;
     double s = 0, sx = 0, sy = 0;
     for (int dy = -win.H; dy <= win.H; ++dy)

@@ -194,6 +194,7 @@ struct RefineSettings
   bool normalise_albedo = true;
   double albedo_floor_dn = 1.0;
   double plain_radius = 0.0;  // > 0: the final centroid is the plain moment in a disc of this many sigmas
+  double plain_snr = 30.0;    // ... where the dot's peak is this many times the border's residual spread
   bool albedo_plane = false;  // normalise by the ambient's plane over the window, not each pixel's
 };
 
@@ -239,7 +240,7 @@ bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit);
 // Stage 4b. Colour of the fitted spot's added light from the final window's
 // planes: fills red_ratio, red_slack, blue_ratio (NaN when there is no signal
 // excess over the rock).
-void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit);
+void measureColour(const PlaneWindow& w, const ColourModel& model, double max_slack, SpotFit* fit);
 
 // g[j] = exp(k (e0 + j)^2) for j in [0, n), by the recurrence
 // g(e + 1) = g(e) exp(k (2e + 1)) outwards from the sample nearest the

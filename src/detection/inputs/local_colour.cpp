@@ -33,9 +33,6 @@
 // of blocks and bins (1/256 and 1/16 of the cells).
 #include <algorithm>
 #include <array>
-#include <cstdio>
-#include <cstdlib>
-#include <ctime>
 #include <cmath>
 #include <vector>
 
@@ -259,31 +256,11 @@ double median3x3(const std::vector<double>& m, int rows, int cols, int y, int x)
 
 }  // namespace
 
-namespace
-{
-double cpuMs()
-{
-  timespec ts;
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return 1e3 * ts.tv_sec + 1e-6 * ts.tv_nsec;
-}
-}  // namespace
-
 void FramePlanes::buildLocalColour(const FastParams& p)
 {
-  const bool dbg = std::getenv("SLS_DEBUG_LOCAL") != nullptr;
-  double t0 = cpuMs();
-  auto lap = [&](const char* what) {
-    if (!dbg)
-      return;
-    const double t1 = cpuMs();
-    std::fprintf(stderr, "  %s %.2f ms\n", what, t1 - t0);
-    t0 = t1;
-  };
   const int bc = (grid_cols_ + kBlock - 1) / kBlock, br = (grid_rows_ + kBlock - 1) / kBlock;
   const size_t nb = static_cast<size_t>(bc) * br;
   const std::vector<BlockSums> blocks = measureBlocks(image_, format_, grid_cols_, grid_rows_, kBlock, bc, br);
-  lap("measure");
   NoiseModel noise;
   if (p.noise_read_dn > 0.0 || p.noise_gain_dn > 0.0)
   {
@@ -294,7 +271,6 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   {
     noise = estimateNoise(blocks);
   }
-  lap("noise model");
   // A Bayer cell averages two green samples and holds one red and one blue.
   const double cell_var[3] = {1.0, scale_ == 2 ? 0.5 : 1.0, 1.0};
 
@@ -404,8 +380,6 @@ void FramePlanes::buildLocalColour(const FastParams& p)
       }
       model_sigma[i] = kUnit * std::sqrt(var);
     }
-
-  lap("colour and q");
   // The raw scores (1/kUnit DN), and per bin the sum of scores and of their
   // squares.
   local_scores_.create(grid_rows_, grid_cols_, CV_16S);
@@ -446,8 +420,6 @@ void FramePlanes::buildLocalColour(const FastParams& p)
           clipped.emplace_back(x, gy);
     }
   }
-
-  lap("scores");
   // The background: an opening of the bin means.
   cv::Mat bin_mean(bins_y, bins_x, CV_32F);
   std::vector<float> bin_var(bin_sum.size());
@@ -468,8 +440,6 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   cv::morphologyEx(bin_mean, background, cv::MORPH_OPEN, kernel, cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
   local_background_.create(bins_y, bins_x, CV_16S);
   background.convertTo(local_background_, CV_16S);
-
-  lap("background");
   // Per block: the spread of the scores within bins (median of its bins'
   // variances) and of the bins about the background (1.4826 x the median
   // absolute residual).
@@ -498,8 +468,6 @@ void FramePlanes::buildLocalColour(const FastParams& p)
       within[i] = std::sqrt(v[n / 2]);
       between[i] = 1.4826 * a[n / 2];
     }
-
-  lap("spread");
   // Thresholds: per block for the peaks (band-passed scores), per bin for the
   // cells (raw scores: the band-passed threshold plus the bin's background),
   // per bin for the coarse pass.
@@ -545,19 +513,6 @@ void FramePlanes::buildLocalColour(const FastParams& p)
   {
     int16_t& v = local_scores_.at<int16_t>(c.y, c.x);
     v = static_cast<int16_t>(std::min(32767, std::max<int>(v, bin_threshold_.at<int>(c.y / kBin, c.x / kBin))));
-  }
-  lap("thresholds");
-  if (const char* dump = std::getenv("SLS_DUMP_LOCAL"))
-  {
-    cv::Mat band(grid_rows_, grid_cols_, CV_32F), thr(grid_rows_, grid_cols_, CV_32F);
-    for (int gy = 0; gy < grid_rows_; ++gy)
-      for (int gx = 0; gx < grid_cols_; ++gx)
-      {
-        band.at<float>(gy, gx) = localScore(gx, gy);
-        thr.at<float>(gy, gx) = bin_threshold_.at<int>(gy / 4, gx / 4) - local_background_.at<int16_t>(gy / 4, gx / 4);
-      }
-    cv::FileStorage fs(dump, cv::FileStorage::WRITE);
-    fs << "band" << band << "thr" << thr << "peak" << block_peak_ << "sigma" << block_sigma_;
   }
 }
 

@@ -208,12 +208,8 @@ TEST(SpotDetectorPhysics, ClippedDots)
                 (extreme ? ", peaks up to 7 x full well" : ", peaks up to 4 x full well"),
             run);
       EXPECT_GT(run.clipped, static_cast<int>(configs.size()) * 40);  // the premise: most dots clipped
-      // 7 x the full well with blooming: bloom streaks join the dots of a
-      // column into one blob, which the splitter does not always take apart
-      // (0.94 measured with the local colour scores, 0.98 with the fixed
-      // greenness, whose score is lower on the streaks' sunlit rock).
-      EXPECT_GE(run.pooled.recall(), extreme ? (blooming ? 0.93 : 0.97) : 0.995);
-      EXPECT_GE(run.worst_recall, extreme ? (blooming ? 0.90 : 0.95) : 0.98);
+      EXPECT_GE(run.pooled.recall(), extreme ? 0.97 : 0.995);
+      EXPECT_GE(run.worst_recall, extreme ? 0.95 : 0.98);
       EXPECT_LE(run.pooled.rms(), extreme ? 0.15 : 0.08);
     }
 }
