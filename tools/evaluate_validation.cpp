@@ -15,7 +15,8 @@
 // SpotDetectorParams field (e.g. fast.detect_threshold is `detect_threshold`),
 // repeatable. --encoding bgr16: a 12-bit converter, MSB-aligned. --noise 0:
 // no shot nor read noise (quantisation stays). --dump: every matched spot
-// with its light centroid and hit pixel (full-frame px), as CSV.
+// with its light centroid and hit pixel (full-frame px), and every false
+// spot (beam -1), as CSV.
 #include <cstdio>
 #include <cstdlib>
 #include <sstream>

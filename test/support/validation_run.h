@@ -52,7 +52,7 @@ struct RunOptions
   std::string projector_file;               // the projector's rays
   double match_px = 2.0;
   bool noise = true;
-  FILE* dump = nullptr;  // when set: one CSV row per matched spot (case, frame, seed, beam, spot, light, hit)
+  FILE* dump = nullptr;  // when set: one CSV row per spot (case, seed, frame, beam or -1 if false, spot, light, hit)
 };
 
 struct Tally
@@ -233,7 +233,12 @@ inline Tally scoreFrame(const SceneTruth& s, const FrameTruth& f, const Lighting
         break;
       }
     if (!near_other)
+    {
       ++t.false_spots;
+      if (dump)
+        std::fprintf(dump, "%s,%d,-1,%.4f,%.4f,,,,\n", label.c_str(), f.index, spots[k].x + offset.x,
+                     spots[k].y + offset.y);
+    }
   }
   for (size_t k = 0; k < spots.size() && k < tri.beam_of_spot.size(); ++k)
   {
