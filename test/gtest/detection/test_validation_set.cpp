@@ -116,7 +116,9 @@ TEST(ValidationSet, TruthIsConsistent)
         EXPECT_GE(visible, 80) << s.name << " frame " << f.index;
         mean /= std::max(visible, 1);
         if (s.kind == "rock")  // on a print, the squares' edges pull each dot's light towards the white
+        {
           EXPECT_LT(std::hypot(mean.x, mean.y), 0.03) << s.name << " frame " << f.index << ": mean offset " << mean;
+        }
         std::cout << "[ MEASURE ] " << s.name << " frame " << f.index << ": " << visible
                   << " visible dots, light centroid to hit point " << std::sqrt(d2 / std::max(visible, 1))
                   << " px RMS\n";
