@@ -59,8 +59,8 @@ Tally heldOutRock(const std::string& lighting, bool strobe, double min_dot_to_su
   int cases = 0;
   for (const CaseSpec& c : validationSet().cases)
   {
-    if (c.half != "heldout" || c.lighting != lighting || c.strobe != strobe ||
-        c.min_dot_to_sun != min_dot_to_sun || validationSet().scene(c.scene).kind != "rock")
+    if (c.half != "heldout" || c.lighting != lighting || c.strobe != strobe || c.min_dot_to_sun != min_dot_to_sun ||
+        validationSet().scene(c.scene).kind != "rock")
       continue;
     ++cases;
     const CaseResult r = runCase(validationSet(), c, options(), false);
@@ -169,12 +169,11 @@ TEST(ValidationSet, HeldOutBoardViewsCalibrateTheProjector)
                                      << "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [0, 0, 0, 0, 0]\n";
   std::ostringstream out, err;
   const fs::path yaml = dir / "projector.yaml";
-  const int status = calibrateProjectorMain({"--images", (dir / "views").string(), "--camera-info",
-                                             (dir / "camera.yaml").string(), "--board",
-                                             std::to_string(s.board_cols) + "x" + std::to_string(s.board_rows),
-                                             "--square", std::to_string(s.square_m), "--margin",
-                                             std::to_string(s.margin_m), "--output", yaml.string()},
-                                            out, err);
+  const int status = calibrateProjectorMain(
+      {"--images", (dir / "views").string(), "--camera-info", (dir / "camera.yaml").string(), "--board",
+       std::to_string(s.board_cols) + "x" + std::to_string(s.board_rows), "--square", std::to_string(s.square_m),
+       "--margin", std::to_string(s.margin_m), "--output", yaml.string()},
+      out, err);
   std::cout << out.str() << err.str();
   ASSERT_EQ(status, 0) << err.str();
   std::smatch m;
@@ -194,8 +193,8 @@ TEST(ValidationSet, HeldOutBoardViewsCalibrateTheProjector)
     worst = std::max(worst, d);
   }
   const double rms = std::sqrt(sum2 / truth.beamCount());
-  std::cout << "[ MEASURE ] " << board->name << ": " << used << " of " << s.frames.size()
-            << " views used, rays " << rms * 1e3 << " mm RMS (worst " << worst * 1e3 << " mm) at 1.5 m\n";
+  std::cout << "[ MEASURE ] " << board->name << ": " << used << " of " << s.frames.size() << " views used, rays "
+            << rms * 1e3 << " mm RMS (worst " << worst * 1e3 << " mm) at 1.5 m\n";
   EXPECT_GE(used, 5);
   EXPECT_LE(rms, 0.5e-3);
   if (!getenv("SLS_KEEP_TMP"))
