@@ -15,7 +15,8 @@
 // SpotDetectorParams field (e.g. fast.detect_threshold is `detect_threshold`),
 // repeatable. --encoding bgr16: a 12-bit converter, MSB-aligned. --noise 0:
 // no shot nor read noise (quantisation stays). --dump: every matched spot
-// with its light centroid and hit pixel (full-frame px), as CSV.
+// with its light centroid and hit pixel (full-frame px), and every false
+// spot (beam -1), as CSV.
 #include <cstdio>
 #include <cstdlib>
 #include <sstream>
@@ -118,11 +119,11 @@ int main(int argc, char** argv)
       if (!names.empty() && std::find(names.begin(), names.end(), c.name) == names.end())
         continue;
       const bool strobe = o.strobe < 0 ? c.strobe : o.strobe != 0;
-      std::printf("case %s (scene %s, %s, %s%s, %s half, %s):\n", c.name.c_str(), c.scene.c_str(),
-                  c.lighting.c_str(), strobe ? "strobed" : "single frame",
-                  c.min_dot_to_sun > 0 ? (", dots >= " + std::to_string(c.min_dot_to_sun).substr(0, 4) +
-                                          " x the rock").c_str()
-                                       : "",
+      std::printf("case %s (scene %s, %s, %s%s, %s half, %s):\n", c.name.c_str(), c.scene.c_str(), c.lighting.c_str(),
+                  strobe ? "strobed" : "single frame",
+                  c.min_dot_to_sun > 0
+                      ? (", dots >= " + std::to_string(c.min_dot_to_sun).substr(0, 4) + " x the rock").c_str()
+                      : "",
                   c.half.c_str(), encodingName(o.output));
       const CaseResult r = runCase(set, c, o, true);
       std::printf("  pooled: %s\n", r.pooled.line().c_str());

@@ -52,7 +52,7 @@ struct RunOptions
   std::string projector_file;               // the projector's rays
   double match_px = 2.0;
   bool noise = true;
-  FILE* dump = nullptr;  // when set: one CSV row per matched spot (case, frame, seed, beam, spot, light, hit)
+  FILE* dump = nullptr;  // when set: one CSV row per spot (case, seed, frame, beam or -1 if false, spot, light, hit)
 };
 
 struct Tally
@@ -100,11 +100,10 @@ struct Tally
                   "recall %.4f (%d/%d, worst frame %.3f), false %.2f/frame (+%d on occluded, %d on unscored dots), "
                   "wrong beams %d of %d assigned, centroid to light %.3f px (worst frame %.3f), to hit %.3f px "
                   "(worst frame %.3f), depth %.2f mm, pose valid %d/%d (%.3f mm, %.4f deg RMS), refused %d/%d",
-                  recall(), matched, truth, worst_recall, frames ? double(false_spots) / frames : NAN,
-                  occluded_spots, other_dots, wrong, assigned, lightRms(), worst_light_rms, hitRms(),
-                  worst_hit_rms, depth_n ? 1e3 * std::sqrt(depth2 / depth_n) : NAN, valid, poses,
-                  valid ? std::sqrt(pose_t2 / valid) : NAN, valid ? std::sqrt(pose_r2 / valid) : NAN, refused,
-                  frames);
+                  recall(), matched, truth, worst_recall, frames ? double(false_spots) / frames : NAN, occluded_spots,
+                  other_dots, wrong, assigned, lightRms(), worst_light_rms, hitRms(), worst_hit_rms,
+                  depth_n ? 1e3 * std::sqrt(depth2 / depth_n) : NAN, valid, poses,
+                  valid ? std::sqrt(pose_t2 / valid) : NAN, valid ? std::sqrt(pose_r2 / valid) : NAN, refused, frames);
     return buf;
   }
 };
@@ -134,8 +133,7 @@ inline uint64_t noiseSeed(uint64_t seed, const std::string& scene, int frame)
 }
 
 // The projector-off frames nearest before and after frame `on` (by time).
-inline void neighbours(const SceneTruth& s, const FrameTruth& on, const FrameTruth** before,
-                       const FrameTruth** after)
+inline void neighbours(const SceneTruth& s, const FrameTruth& on, const FrameTruth** before, const FrameTruth** after)
 {
   *before = *after = nullptr;
   for (const FrameTruth& f : s.frames)
@@ -184,8 +182,8 @@ inline std::vector<Match> match(const Spots& spots, const cv::Point2d& offset, c
 
 // Scores one frame's spots and their triangulation.
 inline Tally scoreFrame(const SceneTruth& s, const FrameTruth& f, const Lighting& l, double min_dot_to_sun,
-                        const Spots& spots, const TriangulationResult& tri, double match_px,
-                        FILE* dump = nullptr, const std::string& label = "")
+                        const Spots& spots, const TriangulationResult& tri, double match_px, FILE* dump = nullptr,
+                        const std::string& label = "")
 {
   Tally t;
   t.frames = 1;
@@ -233,7 +231,12 @@ inline Tally scoreFrame(const SceneTruth& s, const FrameTruth& f, const Lighting
         break;
       }
     if (!near_other)
+    {
       ++t.false_spots;
+      if (dump)
+        std::fprintf(dump, "%s,%d,-1,%.4f,%.4f,,,,\n", label.c_str(), f.index, spots[k].x + offset.x,
+                     spots[k].y + offset.y);
+    }
   }
   for (size_t k = 0; k < spots.size() && k < tri.beam_of_spot.size(); ++k)
   {
@@ -280,8 +283,7 @@ inline CaseResult runCase(const ValidationSet& set, const CaseSpec& c, const Run
     const Triangulator tri(camera, projector);
     PoseDeltaEstimator pose((PoseDeltaParams()));
     pose.setCamera(camera);
-    auto shot = [&](const FrameTruth& f, bool on)
-    {
+    auto shot = [&](const FrameTruth& f, bool on) {
       return capture(exposeFrame(s, loadPasses(s, f), l, on, sensor), sensor, detail::noiseSeed(seed, s.name, f.index));
     };
     Eigen::Isometry3d ref = Eigen::Isometry3d::Identity();
@@ -306,10 +308,11 @@ inline CaseResult runCase(const ValidationSet& set, const CaseSpec& c, const Run
         texture = cv::Mat();
         ambient.convertTo(texture, image.type());
       }
-      const SpotDetectionResult det = strobe ? detector.detect(image, ambient, o.output) : detector.detect(image, o.output);
+      const SpotDetectionResult det =
+          strobe ? detector.detect(image, ambient, o.output) : detector.detect(image, o.output);
       const TriangulationResult tr = tri.process(det.spots);
-      Tally t = scoreFrame(s, f, l, c.min_dot_to_sun, det.spots, tr, o.match_px, o.dump,
-                           c.name + "," + std::to_string(seed));
+      Tally t =
+          scoreFrame(s, f, l, c.min_dot_to_sun, det.spots, tr, o.match_px, o.dump, c.name + "," + std::to_string(seed));
       if (!det.ok)
         ++t.refused;
       PoseDeltaInput in;
@@ -335,8 +338,8 @@ inline CaseResult runCase(const ValidationSet& set, const CaseSpec& c, const Run
         }
       }
       if (print)
-        std::printf("  frame %d seed %llu: %s%s%s\n", f.index, static_cast<unsigned long long>(seed),
-                    t.line().c_str(), det.ok ? "" : "; refused: ", det.ok ? "" : det.error.c_str());
+        std::printf("  frame %d seed %llu: %s%s%s\n", f.index, static_cast<unsigned long long>(seed), t.line().c_str(),
+                    det.ok ? "" : "; refused: ", det.ok ? "" : det.error.c_str());
       result.frames.push_back({f.index, seed, t});
       result.pooled.add(t);
     }

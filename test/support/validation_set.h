@@ -45,12 +45,12 @@ namespace validation
 struct BeamTruth
 {
   int beam = -1;
-  bool hit = false;      // the beam meets the scene
-  bool visible = false;  // its hit point is seen by the camera (nothing in between)
+  bool hit = false;                                        // the beam meets the scene
+  bool visible = false;                                    // its hit point is seen by the camera (nothing in between)
   Eigen::Vector3d point = Eigen::Vector3d::Constant(NAN);  // hit point, camera frame (m)
   cv::Point2d pixel{NAN, NAN};                             // the hit point's pixel
   bool has_light = false;                                  // some of its light reaches the image
-  cv::Point2d light_centroid{NAN, NAN};  // intensity-weighted centroid of this beam's light alone
+  cv::Point2d light_centroid{NAN, NAN};                    // intensity-weighted centroid of this beam's light alone
   double light_sum = 0, light_peak = 0, light_sigma_px = 0;
   bool window_cut = false;  // the centroid's window was cut by the ROI's edge
   // The sun's and the sky's passes under the dot (where its light is at
@@ -61,8 +61,8 @@ struct BeamTruth
 struct FrameTruth
 {
   int index = 0;
-  double t = 0;            // s
-  bool projector = false;  // the projector lights this frame
+  double t = 0;                                                         // s
+  bool projector = false;                                               // the projector lights this frame
   Eigen::Isometry3d camera_from_world = Eigen::Isometry3d::Identity();  // world = the rock's (or board's) scene
   bool has_board = false;
   Eigen::Isometry3d camera_from_board = Eigen::Isometry3d::Identity();
@@ -123,9 +123,9 @@ struct CaseSpec
 {
   std::string name, scene, lighting;
   bool strobe = false;
-  std::string half;              // "tuning" or "heldout"
-  double min_dot_to_sun = 0.0;   // beams scored: the dot at least this x the rock under it (day single frame)
-  std::vector<int> on_frames;    // the projector frames of the sequence, in order (the first is locked)
+  std::string half;             // "tuning" or "heldout"
+  double min_dot_to_sun = 0.0;  // beams scored: the dot at least this x the rock under it (day single frame)
+  std::vector<int> on_frames;   // the projector frames of the sequence, in order (the first is locked)
 };
 
 struct ValidationSet
@@ -427,8 +427,8 @@ inline cv::Mat capture(const cv::Mat& mean_dn, const Sensor& sensor, uint64_t se
         e = e < 50.0 ? std::poisson_distribution<int>(e)(rng) : e + std::sqrt(e) * gauss(rng);
         e = std::min(std::max(e, 0.0), sensor.full_well_e) + sensor.read_noise_e * gauss(rng);
       }
-      const double v = std::min(levels, std::max(0.0, std::round(std::min(e, sensor.full_well_e) /
-                                                                  sensor.full_well_e * levels)));
+      const double v =
+          std::min(levels, std::max(0.0, std::round(std::min(e, sensor.full_well_e) / sensor.full_well_e * levels)));
       if (wide)
         raw.at<uint16_t>(y, x) = static_cast<uint16_t>(v * std::pow(2.0, 16 - sensor.bits));
       else
