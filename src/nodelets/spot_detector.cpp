@@ -426,6 +426,11 @@ private:
       dropFrame("frame dropped: " + result.error);
       return;
     }
+    if (!result.note.empty())
+    {
+      ++frames_partial_;
+      warnPartial(result.note);
+    }
     publishSpots(*msg, result.spots, timings.total_ms, !ambient.empty());
     if (want_debug)
     {
@@ -497,6 +502,7 @@ private:
       stat.add("ambient frames used as they are (nearest)", frames_nearest_ambient_.load());
     }
     stat.add("frames dropped (bad input)", framesDropped());
+    stat.add("frames with candidates left out (more than the pattern holds)", frames_partial_.load());
     stat.add("dots in last frame", last_spots_);
     stat.add("tracking (search windows)", track && method == "fast");
     stat.addf("share of the frame searched last frame (%)", "%.1f", 100.0 * searched_fraction_.load());
@@ -558,6 +564,7 @@ private:
   std::atomic<int> frames_compensated_{0}, frames_nearest_ambient_{0};  // how the ambient frame was made
   std::atomic<double> searched_fraction_{1.0};                          // of the last frame's pixels
   std::atomic<long> full_searches_{0};
+  std::atomic<long> frames_partial_{0};
   std::string full_reason_;  // under stats_mutex_
 };
 

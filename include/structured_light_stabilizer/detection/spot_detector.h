@@ -235,6 +235,7 @@ struct SpotDetectionResult
 {
   bool ok = false;
   std::string error;  // why the frame was refused (ok == false)
+  std::string note;   // what the detector left out of an accepted frame, and why (empty: nothing)
   Spots spots;
   std::vector<SpotQuality> quality;  // parallel to spots (fast method; empty for the baseline)
 };

@@ -2,6 +2,8 @@
 // spot_detector_fast_stages.h). Grid coordinates (FramePlanes) up to the
 // candidates, which are in pixels of the full frame.
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <cmath>
 #include <limits>
 
@@ -145,7 +147,7 @@ void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, cons
   for (size_t i = 0; i < blobs.size(); ++i)
   {
     const Blob& b = blobs[i];
-    if (b.count < min_count || b.peak < planes.peakThreshold(p.min_peak) || !(b.sum > 0))
+    if (b.count < min_count || b.peak < planes.peakThresholdAt(b.peak_x, b.peak_y, p.min_peak) || !(b.sum > 0))
       continue;  // noise: not worth a line in the debug output
     // First guess of sigma from the candidate area: a Gaussian exceeds a
     // threshold within ~2 sigma of its centre for typical peak/threshold ratios.
@@ -161,6 +163,7 @@ void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, cons
     c.peak_x = static_cast<int>(std::lround(planes.toPixel(b.peak_x)));
     c.peak_y = static_cast<int>(std::lround(planes.toPixel(b.peak_y)));
     c.blob = static_cast<int>(i);
+    c.significance = planes.significance(b.peak_x, b.peak_y, b.peak);
     candidates->push_back(c);
   }
 }
@@ -216,7 +219,10 @@ int CoarseCandidates::add(const cv::Mat& coarse, int threshold, double max_sigma
 {
   // Block size in pixels of the full frame (candidates are in pixels).
   const int kBin = ThresholdPass::kBin * planes.scale();
-  cv::compare(coarse, cv::Scalar(threshold), mask_, cv::CMP_GE);
+  if (planes.localPath())
+    cv::compare(coarse, planes.coarseThresholds(), mask_, cv::CMP_GE);
+  else
+    cv::compare(coarse, cv::Scalar(threshold), mask_, cv::CMP_GE);
   // Cells already explained by a full-resolution candidate are skipped.
   for (const Candidate& c : *candidates)
   {
@@ -237,6 +243,11 @@ int CoarseCandidates::add(const cv::Mat& coarse, int threshold, double max_sigma
       const double extent = kBin * std::max(c.x1 - c.x0 + 1, c.y1 - c.y0 + 1);
       candidates->push_back({cx, cy, std::min(std::max(0.25 * extent, 1.5), max_sigma_px), c.area * kBin * kBin,
                              (c.x0 - 1) * kBin, (c.y0 - 1) * kBin, (c.x1 + 2) * kBin, (c.y1 + 2) * kBin, -1, -1, -1});
+      // A bin's mean has a quarter of a cell's noise.
+      const int bin = ThresholdPass::kBin;
+      candidates->back().significance =
+          planes.significance(static_cast<int>(c.sx / c.sum) * bin, static_cast<int>(c.sy / c.sum) * bin,
+                              bin * c.sum / c.area);
     }
   }
   return static_cast<int>(candidates->size() - before);

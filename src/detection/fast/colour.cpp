@@ -34,6 +34,10 @@ struct RingColour
   cv::Vec3d plane[3];  // (a, bx, by) per channel
   double k_sig = 0, k_third = 0;
   double ref_spread = 0;
+  // Spread of the texture-free signal and third (channel - k reference)
+  // about their planes: what the rock's own colour texture, and the shading
+  // of its facets in another hue, leave in the texture-free ratio.
+  double free_sig_spread = 0, free_third_spread = 0;
   double at(int c, int dx, int dy) const { return plane[c][0] + plane[c][1] * dx + plane[c][2] * dy; }
 };
 
@@ -98,9 +102,32 @@ RingColour ringColour(const PlaneWindow& w)
     ring.k_sig = std::min(4.0, std::max(0.0, sr / rr));
     ring.k_third = std::min(4.0, std::max(0.0, tr / rr));
   }
+  // The texture-free spreads robustly (1.4826 x the median absolute
+  // residual): a bloom streak or a neighbour's flank crossing a part of the
+  // border is not the rock's texture.
   double spread = 0;
-  forBorderSamples(w, [&](int dx, int dy, int i) { spread += detail::square(w.reference[i] - ring.at(kRef, dx, dy)); });
+  float fs[8 * (2 * PlaneWindow::kMaxRadius + 1)], ft[8 * (2 * PlaneWindow::kMaxRadius + 1)];
+  int m = 0;
+  forBorderSamples(w,
+                   [&](int dx, int dy, int i)
+                   {
+                     const double r = w.reference[i] - ring.at(kRef, dx, dy);
+                     spread += detail::square(r);
+                     if (m < static_cast<int>(sizeof(fs) / sizeof(fs[0])))
+                     {
+                       fs[m] = static_cast<float>(std::abs(w.signal[i] - ring.at(kSig, dx, dy) - ring.k_sig * r));
+                       ft[m] = static_cast<float>(std::abs(w.third[i] - ring.at(kThird, dx, dy) - ring.k_third * r));
+                       ++m;
+                     }
+                   });
   ring.ref_spread = n ? std::sqrt(spread / n) : 0.0;
+  if (m > 0)
+  {
+    std::nth_element(fs, fs + m / 2, fs + m);
+    std::nth_element(ft, ft + m / 2, ft + m);
+    ring.free_sig_spread = 1.4826 * fs[m / 2];
+    ring.free_third_spread = 1.4826 * ft[m / 2];
+  }
   return ring;
 }
 
@@ -225,7 +252,7 @@ Excess weightedExcess(const PlaneWindow& w, const SpotFit& fit, const RingColour
 // (led_third - k_third led_ref) / (1 - k_sig led_ref) for a dot, mapped back
 // to led_third for the comparison. With an ambient frame both are plain
 // ratios of frame - ambient. Gaussian-weighted, unclipped samples only.
-void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit)
+void measureColour(const PlaneWindow& w, const ColourModel& model, double max_slack, SpotFit* fit)
 {
   const RingColour ring = w.ambient ? RingColour() : ringColour(w);
   const Excess e = weightedExcess(w, *fit, ring);
@@ -242,6 +269,11 @@ void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit)
   const double expected =
       (model.led_third - ring.k_third * model.led_reference) / std::max(0.1, 1.0 - ring.k_sig * model.led_reference);
   fit->blue_ratio = e.free_third / e.free_sig - expected + model.led_third;
+  // The same reasoning for the texture-free ratio: what the border's
+  // texture-free spread can move it by (first order in both sums).
+  fit->blue_slack =
+      e.sum_w * (ring.free_third_spread + std::abs(fit->blue_ratio) * ring.free_sig_spread) / e.free_sig;
+  fit->blue_slack = std::min(fit->blue_slack, max_slack);
 }
 
 }  // namespace fast_detector

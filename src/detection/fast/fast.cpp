@@ -8,6 +8,8 @@
 // genuine dots per frame on textured rock). Clutter of the projector's
 // colour and a dot's size is the Triangulator's to reject, by geometry.
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <cmath>
 #include <string>
 #include <vector>
@@ -108,6 +110,9 @@ RefineSettings refineSettings(const FastParams& p)
   rs.subtract_texture = p.subtract_rock_texture;
   rs.normalise_albedo = p.normalise_albedo;
   rs.albedo_floor_dn = p.albedo_floor_dn;
+  rs.plain_radius = p.plain_radius;
+  rs.plain_snr = p.plain_snr;
+  rs.albedo_plane = p.albedo_plane;
   return rs;
 }
 
@@ -147,7 +152,13 @@ std::string colourRejection(const SpotFit& r, const ColourTestParams& p, const C
   // A spot on a pedestal is suspect: the pedestal is often an olive or
   // yellow mineral, whose own red shows up as extra red excess.
   red_bad = red_bad || (r.on_pedestal && std::abs(r.red_ratio - led_ref) > p.max_chroma_error);
-  if (!std::isfinite(r.blue_ratio) || red_bad || std::abs(r.blue_ratio - led_third) > p.max_chroma_error)
+  // The third: a tolerance of the projector's own, plus what the border's
+  // texture could have moved the ratio by (facets shaded in another hue,
+  // grains of another colour, a demosaicked edge).
+  // No excess over the border's planes at all (NaN): rejected (an olive
+  // mineral wider than the window; a dot in a cast shadow between sunlit
+  // facets is lost with it, measured by tools/evaluate_validation).
+  if (red_bad || !std::isfinite(r.blue_ratio) || std::abs(r.blue_ratio - led_third) > p.max_chroma_error + r.blue_slack)
     return "colour: reference/signal " + std::to_string(r.red_ratio) + ", third/signal " + std::to_string(r.blue_ratio);
   return std::string();
 }
@@ -169,7 +180,7 @@ std::string spotRejection(const FramePlanes& planes, const Candidate& c, const F
     const PlaneWindow& w = scratch->planes;
     if (w.cx != r->window.x + H || w.cy != r->window.y + H || w.H != H)
       planes.fillWindow(r->window.x + H, r->window.y + H, H, &scratch->planes);
-    measureColour(scratch->planes, planes.model(), r);
+    measureColour(scratch->planes, planes.model(), p.colour_test.max_texture_slack, r);
     std::string why = colourRejection(*r, p.colour_test, planes.model());
     if (!why.empty())
       return why;
@@ -194,8 +205,17 @@ std::vector<char> markDuplicates(const std::vector<KeptSpot>& kept)
   std::vector<size_t> order(kept.size());
   for (size_t i = 0; i < order.size(); ++i)
     order[i] = i;
+  // A spot whose colour was measured and is the projector's goes before one
+  // whose colour could not be measured (a streak's fragment next to a dot),
+  // then the brighter.
+  const auto measured = [&](size_t i) { return std::isfinite(kept[i].fit.blue_ratio) || kept[i].fit.clipped; };
   std::sort(order.begin(), order.end(),
-            [&](size_t a, size_t b) { return kept[a].fit.amplitude > kept[b].fit.amplitude; });
+            [&](size_t a, size_t b)
+            {
+              if (measured(a) != measured(b))
+                return measured(a);
+              return kept[a].fit.amplitude > kept[b].fit.amplitude;
+            });
   std::vector<char> drop(kept.size(), 0);
   for (size_t i = 0; i < order.size(); ++i)
   {
@@ -306,16 +326,18 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   findCandidates(p, debug);
   tm.threshold_ms = threshold_ms_;
   tm.labelling_ms = timer.lap() - threshold_ms_;
+  // More candidates than the pattern can hold (texture of the projector's
+  // colour, noise, a flash): the most significant are refined, the frame is
+  // never refused for them.
   const size_t budget = candidateBudget(params);
+  std::string note;
   if (candidates_.size() > budget)
   {
-    SpotDetectionResult refused;
-    refused.error = std::to_string(candidates_.size()) + " candidate spots for " + std::to_string(budget) +
-                    " at most (fast.max_candidates, or 10 x the projector's beams): not a dot image (noise, a "
-                    "flash, or detection thresholds far too low)";
-    if (timings)
-      *timings = tm;
-    return refused;
+    note = "kept the " + std::to_string(budget) + " most significant of " + std::to_string(candidates_.size()) +
+           " candidate spots (fast.max_candidates, or 10 x the projector's beams)";
+    std::stable_sort(candidates_.begin(), candidates_.end(),
+                     [](const Candidate& a, const Candidate& b) { return a.significance > b.significance; });
+    candidates_.resize(budget);
   }
   const std::vector<KeptSpot> kept = refineCandidates(p, debug, 2 * budget);
   const std::vector<char> drop = markDuplicates(kept);
@@ -335,6 +357,7 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
       debug->fitted += q.clipped ? 1 : 0;
   }
   result.spots = std::move(spots);
+  result.note = note;
   if (timings)
     *timings = tm;
   result.ok = true;
@@ -385,11 +408,16 @@ std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDete
       const int px = c.peak_x >= 0 ? c.peak_x : static_cast<int>(std::lround(c.x));
       const int py = c.peak_y >= 0 ? c.peak_y : static_cast<int>(std::lround(c.y));
       Candidate seed;
-      const int min_peak = planes_.peakThreshold(p.min_peak);
+      const int k = planes_.scale();
+      const int min_peak = planes_.peakThresholdAt(px / k, py / k, p.min_peak);
       if (fits ? splitter_.nextSeed(c, r.x, r.y, r.sigma, min_peak, p.max_sigma_px, &seed)
                : splitter_.nextSeed(c, px, py, 1.5, min_peak, p.max_sigma_px, &seed))
         if (candidates_.size() < max_candidates)  // the seeds of split blobs count too
+        {
+          const int gx = seed.peak_x / k, gy = seed.peak_y / k;
+          seed.significance = planes_.significance(gx, gy, planes_.scoreAt(gx, gy));
           candidates_.push_back(seed);
+        }
       if (again)
         continue;
     }

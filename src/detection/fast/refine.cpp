@@ -305,6 +305,10 @@ struct WeightRow
   const float* third;
   float c, b, gain, inv_mean, floor, lo, hi;
   bool mix, ambient, normalised;
+  // With a plane of the ambient (albedo_plane): alpha from a0 + ax k + ay
+  // (the row's part in a0) instead of each pixel's ambient.
+  bool plane_alpha = false;
+  float a0 = 0, ax = 0;
   int operator()(const PlaneWindow& pw, int row, float p0, float pbx, float* v) const;
 };
 
@@ -329,7 +333,12 @@ int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, f
       rock = rock + vb * cv::v_load_aligned(third + i);
     const cv::v_float32x4 added = (sig - rock - (vp0 + vpbx * cv::v_cvt_f32(cv::v_reinterpret_as_s32(lane)))) * vg;
     cv::v_float32x4 val = added;
-    if (normalised)
+    if (normalised && plane_alpha)
+    {
+      const cv::v_float32x4 amb = cv::v_setall_f32(a0) + cv::v_setall_f32(ax) * cv::v_cvt_f32(cv::v_reinterpret_as_s32(lane));
+      val = added / cv::v_min(vhi, cv::v_max(vlo, (amb + vfl) * vmean));
+    }
+    else if (normalised)
     {
       const cv::v_float32x4 amb = ambient ? cv::v_load_aligned(pw.ambient_signal + i) : sig - added;
       val = added / cv::v_min(vhi, cv::v_max(vlo, (amb + vfl) * vmean));
@@ -354,7 +363,7 @@ int WeightRow::operator()(const PlaneWindow& pw, int row, float p0, float pbx, f
     float alpha = 1.0f;
     if (normalised)
     {
-      const float amb = ambient ? pw.ambient_signal[i] : pw.signal[i] - added;
+      const float amb = plane_alpha ? a0 + ax * k : (ambient ? pw.ambient_signal[i] : pw.signal[i] - added);
       alpha = std::min(hi, std::max(lo, (amb + floor) * inv_mean));
     }
     v[k] = added / alpha;
@@ -424,10 +433,33 @@ void buildWeights(const PlaneWindow& pw, const ColourModel& model, bool third_ch
   weigh.hi = static_cast<float>(kAlphaMax);
   weigh.ambient = pw.ambient;
   weigh.normalised = win->normalised;
+  // albedo_plane: the ambient's least-squares plane over the window's samples
+  // (the grains' gradient across the dot, which pulls its centroid) rather
+  // than each pixel's ambient, whose facet-to-facet shading by the sun the
+  // projector's light does not share.
+  Plane ambient_plane;
+  if (win->normalised && rs.albedo_plane)
+  {
+    std::vector<RingSample> all;
+    all.reserve(static_cast<size_t>((2 * H + 1) * (2 * H + 1)));
+    for (int dy = -H; dy <= H; ++dy)
+      for (int dx = -H; dx <= H; ++dx)
+      {
+        const int i = pw.index(dx, dy);
+        if ((pw.flags[i] & (PlaneWindow::kSample | PlaneWindow::kClipped)) != PlaneWindow::kSample)
+          continue;
+        const double added = (baseValue(pw, i, d) - plane.at(dx, dy)) * d.gain;
+        all.push_back({dx, dy, ambientValue(pw, i, added)});
+      }
+    ambient_plane = fitPlane(all.data(), static_cast<int>(all.size()), nullptr, Plane{mean_ambient, 0, 0});
+    weigh.plane_alpha = true;
+  }
   int samples_in = 0;
   for (int dy = -H; dy <= H; ++dy)
   {
     const int row = pw.index(-H, dy);
+    weigh.a0 = static_cast<float>(ambient_plane.a + ambient_plane.by * dy - ambient_plane.bx * H);
+    weigh.ax = static_cast<float>(ambient_plane.bx);
     samples_in += weigh(pw, row, static_cast<float>(plane.a + plane.by * dy - plane.bx * H),
                         static_cast<float>(plane.bx), win->vals + row);
   }
@@ -769,6 +801,37 @@ bool refineSpot(const FramePlanes& planes, const RefineSettings& rs, double x0, 
   }
   if (!std::isfinite(xc) || !std::isfinite(yc) || std::abs(xc - win.cx) > win.H || std::abs(yc - win.cy) > win.H)
     return false;
+  // The light's own centroid where the dot stands well out of what the
+  // window's border shows of the rock: the plain first moment of the added
+  // light in a disc of plain_radius sigmas. A Gaussian weight finds the
+  // centre of a symmetric dot; the footprint of a beam on facets of the rock
+  // is not symmetric, and its plain moment is the light's centroid (where the
+  // rock's residual is small against the dot, its noise costs little).
+  const double peak = flux / std::max(1e-3, win.density) / (2.0 * M_PI * sw * sw);
+  if (rs.plain_radius > 0.0 && peak >= rs.plain_snr * std::max(win.noise, 0.5))
+  {
+    const double R = rs.plain_radius * sw;
+    double s = 0, sx = 0, sy = 0;
+    for (int dy = -win.H; dy <= win.H; ++dy)
+    {
+      const float* v = win.vals + (dy + win.H) * win.stride;
+      const double ey = win.cy + dy - yc;
+      for (int dx = -win.H; dx <= win.H; ++dx)
+      {
+        const double ex = win.cx + dx - xc;
+        if (ex * ex + ey * ey > R * R)
+          continue;
+        s += v[dx + win.H];
+        sx += v[dx + win.H] * ex;
+        sy += v[dx + win.H] * ey;
+      }
+    }
+    if (s > 1e-6 && std::abs(sx / s) < sw && std::abs(sy / s) < sw)
+    {
+      xc += sx / s;
+      yc += sy / s;
+    }
+  }
   out->x = xc;
   out->y = yc;
   out->sigma = sw;

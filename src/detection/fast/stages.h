@@ -96,6 +96,7 @@ struct Candidate
   int peak_x = -1, peak_y = -1;  // strongest pixel (full-resolution blobs; centre of the cell)
   int blob = -1;                 // index in the blobs (full-resolution candidates)
   bool seed = false;             // a further local maximum of a blob (see BlobSplitter)
+  double significance = 0;       // noise sigmas of its peak (FramePlanes::significance): the ranking
 };
 
 // Stage 3a. The blobs worth refining (enough pixels, a strong enough peak).
@@ -109,7 +110,8 @@ void addBlobCandidates(const std::vector<Blob>& blobs, const FastParams& p, cons
 class CoarseCandidates
 {
 public:
-  // Appends the coarse candidates; returns how many.
+  // Appends the coarse candidates (bins at or above `threshold`, or the
+  // planes' coarse thresholds on the local path); returns how many.
   int add(const cv::Mat& coarse, int threshold, double max_sigma_px, const FramePlanes& planes,
           std::vector<Candidate>* candidates);
 
@@ -171,6 +173,7 @@ struct SpotFit
   // relative to the signal's ("red" and "blue" for a green projector).
   double red_ratio = 0, blue_ratio = 0;
   double red_slack = 0;      // how far texture alone could move the reference ratio
+  double blue_slack = 0;     // and the texture-free third ratio
   double background = 0;     // local background level of the signal (DN)
   double noise = 0;          // robust spread of the window's border about its background plane (DN)
   bool on_pedestal = false;  // found by the small-window retry
@@ -190,6 +193,9 @@ struct RefineSettings
   bool subtract_texture = true;  // colour frames: signal - (a reference + b third), the rock's mix
   bool normalise_albedo = true;
   double albedo_floor_dn = 1.0;
+  double plain_radius = 0.0;  // > 0: the final centroid is the plain moment in a disc of this many sigmas
+  double plain_snr = 30.0;    // ... where the dot's peak is this many times the border's residual spread
+  bool albedo_plane = false;  // normalise by the ambient's plane over the window, not each pixel's
 };
 
 // The weight field of one window: the dot's added light over the rock,
@@ -234,7 +240,7 @@ bool fitGaussian(const WeightWindow& w, double max_sigma, SpotFit* fit);
 // Stage 4b. Colour of the fitted spot's added light from the final window's
 // planes: fills red_ratio, red_slack, blue_ratio (NaN when there is no signal
 // excess over the rock).
-void measureColour(const PlaneWindow& w, const ColourModel& model, SpotFit* fit);
+void measureColour(const PlaneWindow& w, const ColourModel& model, double max_slack, SpotFit* fit);
 
 // g[j] = exp(k (e0 + j)^2) for j in [0, n), by the recurrence
 // g(e + 1) = g(e) exp(k (2e + 1)) outwards from the sample nearest the

@@ -67,7 +67,15 @@ void FramePlanes::bind(const cv::Mat& image, const cv::Mat& ambient, PixelFormat
   row_scores_.resize(static_cast<size_t>(std::max(grid_cols_, 1)));
   matched_.release();
   matched_noise_ = MatchedNoise();
-  if (!model_.colour)
+  local_ = false;
+  if (ambient_.empty() && p.local_colour && grid_cols_ > 0 && grid_rows_ > 0)
+  {
+    local_ = true;
+    local_row_ = -1;
+    unit_ = 16;
+    buildLocalColour(p);
+  }
+  else if (!model_.colour)
     buildIntensityMaps(p);
   else if (!ambient_.empty() && p.matched_sigma_px > 0.0 && grid_cols_ > 0 && grid_rows_ > 0)
     buildMatchedScores(p, fixed && fixed->valid ? fixed : nullptr);
@@ -148,13 +156,15 @@ int FramePlanes::levelOf(int gx, int gy) const
 
 int FramePlanes::thresholdOf(int gx, int gy) const
 {
-  return model_.colour ? threshold_ : block_threshold_.at<int>(gy / kBlock, gx / kBlock);
+  return model_.colour && !local_ ? threshold_ : block_threshold_.at<int>(gy / kBlock, gx / kBlock);
 }
 
 int FramePlanes::cellScore(int gx, int gy) const
 {
   if (matchedPath())
     return matched_.at<int16_t>(gy, gx);
+  if (local_)
+    return localScore(gx, gy);
   if (ambient_.empty())  // the hot paths: a colour camera's bgr8, a mono camera's mono8
   {
     if (format_ == PixelFormat::kMono8)
@@ -191,6 +201,14 @@ int FramePlanes::scoreAt(int gx, int gy) const
 
 void FramePlanes::scoreRun(int gy, int gx0, int gx1, int* out) const
 {
+  if (local_)
+  {
+    const int16_t* s = local_scores_.ptr<int16_t>(gy);
+    const int16_t* bg = local_background_.ptr<int16_t>(gy / 4);
+    for (int gx = gx0; gx <= gx1; ++gx)
+      *out++ = s[gx] - bg[gx / 4];
+    return;
+  }
   if (!matchedPath() && ambient_.empty() && format_ == PixelFormat::kBgr8 && model_.colour)
   {
     const uint8_t* px = image_.ptr<uint8_t>(gy) + 3 * gx0;
@@ -218,6 +236,14 @@ void FramePlanes::scoreRun(int gy, int gx0, int gx1, int* out) const
 // row, simple loops per cell), scored, compared.
 void FramePlanes::scoreRow(int gy, int16_t* out) const
 {
+  if (local_)
+  {
+    const int16_t* s = local_scores_.ptr<int16_t>(gy);
+    const int16_t* bg = local_background_.ptr<int16_t>(gy / 4);
+    for (int gx = 0; gx < grid_cols_; ++gx)
+      out[gx] = static_cast<int16_t>(std::min(32767, std::max(-32768, s[gx] - bg[gx / 4])));
+    return;
+  }
   if (model_.colour && rows::colourScoreRow(image_, ambient_, format_, model_, k_ref_, k_third_, gy, out))
     return;  // the SIMD rows of the common formats, the same values
   const int n = grid_cols_;
@@ -291,6 +317,48 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
         rows::markCell(runs, gy, gx);
     return;
   }
+  if (local_)
+  {
+    // Raw scores against each bin's threshold (the background in it), the
+    // rows of the bins expanded to cells once per bin row; 16 cells at a
+    // time where none passes.
+    if (gy % 4 == 0 || local_row_ != gy / 4)
+    {
+      local_row_ = gy / 4;
+      local_thr_.resize(static_cast<size_t>(grid_cols_));
+      local_bg_.resize(static_cast<size_t>(grid_cols_));
+      const int* thr = bin_threshold_.ptr<int>(local_row_);
+      const int16_t* bg = local_background_.ptr<int16_t>(local_row_);
+      for (int gx = 0; gx < grid_cols_; ++gx)
+      {
+        local_thr_[gx] = static_cast<int16_t>(std::min(32767, thr[gx / 4]));
+        local_bg_[gx] = bg[gx / 4];
+      }
+    }
+    const int16_t* s = local_scores_.ptr<int16_t>(gy);
+    const int16_t* t = local_thr_.data();
+    int gx = 0;
+    for (; gx + 16 <= grid_cols_; gx += 16)
+    {
+      int any = 0;
+      for (int k = 0; k < 16; ++k)
+        any |= s[gx + k] >= t[gx + k];
+      if (any)
+        for (int k = 0; k < 16; ++k)
+          if (s[gx + k] >= t[gx + k])
+            rows::markCell(runs, gy, gx + k);
+    }
+    for (; gx < grid_cols_; ++gx)
+      if (s[gx] >= t[gx])
+        rows::markCell(runs, gy, gx);
+    if (acc)
+    {
+      const int16_t* bg = local_bg_.data();
+      for (int x = 0; x < grid_cols_; ++x)
+        acc[x] = static_cast<uint16_t>(acc[x] + std::min(255, std::max(0, s[x] - bg[x])));
+    }
+    return;
+  }
   if (fusedRowRuns(gy, runs, acc))
     return;
   int16_t* s = row_scores_.data();
@@ -299,7 +367,7 @@ void FramePlanes::rowRuns(int gy, std::vector<Run>* runs, uint16_t* acc)
     for (int gx = 0; gx < grid_cols_; ++gx)
       acc[gx] = static_cast<uint16_t>(acc[gx] + std::min(255, std::max(0, int(s[gx]))));
   // The threshold of each block of the row (one for the colour path).
-  const int* block_thr = model_.colour ? nullptr : block_threshold_.ptr<int>(gy / kBlock);
+  const int* block_thr = model_.colour && !local_ ? nullptr : block_threshold_.ptr<int>(gy / kBlock);
   for (int x0 = 0; x0 < grid_cols_; x0 += kBlock)
   {
     const int thr = block_thr ? block_thr[x0 / kBlock] : threshold_, x1 = std::min(grid_cols_, x0 + kBlock);
@@ -408,12 +476,18 @@ void FramePlanes::buildIntensityMaps(const FastParams& p)
   block_level_ = filter3x3(filter3x3(mean, true), false);
   noise = filter3x3(noise, true);
   block_threshold_.create(br, bc, CV_32S);
+  block_peak_.create(br, bc, CV_32S);
+  block_sigma_.create(br, bc, CV_32F);
   const int floor16 = 16 * p.mono_threshold;
   for (int y = 0; y < br; ++y)
     for (int x = 0; x < bc; ++x)
     {
-      const double n = std::min(noise.at<int>(y, x), 16 * 255);
+      // At least the 8-bit quantisation's noise (1/16 DN units).
+      const double n = std::max(16.0 * 0.29, static_cast<double>(std::min(noise.at<int>(y, x), 16 * 255)));
+      block_sigma_.at<float>(y, x) = static_cast<float>(n);
       block_threshold_.at<int>(y, x) = std::max(floor16, static_cast<int>(std::ceil(p.intensity_snr * n)));
+      // A blob's peak: peak_snr local sigmas over the background.
+      block_peak_.at<int>(y, x) = std::max(16, static_cast<int>(std::ceil(p.peak_snr * n)));
     }
 }
 

@@ -6,9 +6,14 @@
 //  - the score grid, for the threshold pass: one score per cell (a pixel, or
 //    a 2 x 2 cell of a Bayer mosaic: half the resolution, all four samples
 //    read once), computed on the raw data row by row. Colour path (a colour
-//    frame and a green, red or blue projector): the contrast of the
-//    projector's colour against the rock, signal - max(w_ref reference,
-//    w_third third), in DN. Intensity path (mono frames, nir/white
+//    frame and a green, red or blue projector): the projector's share of the
+//    cell's colour. By default (FastParams::local_colour) measured against
+//    the rock's own colour around the cell: the component along the
+//    projector's colour of what the rock's local colour does not explain, in
+//    DN of the signal channel, against thresholds per block from the local
+//    noise (local_colour.cpp; nothing is assumed of the rock's colour); else
+//    the fixed contrast signal - max(w_ref reference, w_third third), in DN,
+//    against one threshold. Intensity path (mono frames, nir/white
 //    projectors): the intensity over its local background (an opening of
 //    16 x 16-cell block means), in 1/16 DN, against a threshold per block
 //    from the local noise. With an ambient frame both score frame - ambient.
@@ -138,6 +143,26 @@ public:
       return matched_peak_;
     return scale_ == 2 ? (3 * min_peak * unit_ + 3) / 4 : min_peak * unit_;
   }
+  // The same at grid cell (gx, gy): the local path's threshold of the cell's
+  // block, else peakThreshold().
+  int peakThresholdAt(int gx, int gy, int min_peak) const
+  {
+    if (!localPath() && (model_.colour || matchedPath()))
+      return peakThreshold(min_peak);
+    return block_peak_.at<int>(std::min(std::max(gy, 0), grid_rows_ - 1) / kBlock,
+                               std::min(std::max(gx, 0), grid_cols_ - 1) / kBlock);
+  }
+  // How many noise sigmas a score at cell (gx, gy) stands for (the local
+  // path's noise of the cell's block; the matched path's of the frame; else
+  // the score over its threshold): what ranks candidates when a frame holds
+  // more than the pattern can.
+  double significance(int gx, int gy, double score) const;
+  // Colour path without an ambient frame, FastParams::local_colour: scores
+  // against the rock's local colour, thresholds per block from the noise.
+  bool localPath() const { return local_; }
+  // The coarse pass's threshold of each 4 x 4-cell bin (CV_8U, the coarse
+  // map's size) on the local path: the bin mean's own noise; empty else.
+  const cv::Mat& coarseThresholds() const { return coarse_threshold_; }
   // Colour path with an ambient frame: scores are the matched-filtered
   // difference (FastParams::matched_sigma_px), thresholds from its noise.
   bool matchedPath() const { return !matched_.empty(); }
@@ -185,9 +210,24 @@ private:
   int threshold_ = 8;                // colour path (DN)
   int saturation_ = 250;             // native units
   // Intensity path, per block of kBlock x kBlock cells: background level and
-  // threshold above it (1/16 DN).
+  // threshold above it (1/16 DN). The local path: the cell threshold per
+  // block (DN).
   static constexpr int kBlock = 16;
   cv::Mat block_level_, block_threshold_;
+  // The local path (local_colour.cpp), in 1/16 DN: the raw score of every
+  // cell (CV_16S) and per 4 x 4-cell bin its background (CV_16S; a cell's
+  // score is raw - background) and the raw score's cell threshold (CV_32S);
+  // per block the peak threshold (CV_32S) and the score's noise sigma
+  // (CV_32F); the coarse pass's thresholds.
+  bool local_ = false;
+  cv::Mat local_scores_, local_background_, bin_threshold_, block_peak_, block_sigma_, coarse_threshold_;
+  void buildLocalColour(const FastParams& p);
+  int local_row_ = -1;                             // rowRuns: the bin row of local_thr_, local_bg_
+  std::vector<int16_t> local_thr_, local_bg_;      // rowRuns: per cell of that bin row
+  int localScore(int gx, int gy) const
+  {
+    return local_scores_.at<int16_t>(gy, gx) - local_background_.at<int16_t>(gy / 4, gx / 4);
+  }
   // Matched path: the smoothed difference score per cell, in 1/kMatchedUnit
   // DN above the frame's median; the peak threshold in the same units.
   static constexpr int kMatchedUnit = 8;

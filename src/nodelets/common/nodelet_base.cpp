@@ -117,6 +117,16 @@ void NodeletBase::dropFrame(const std::string& why)
   last_drop_reason_ = why;
 }
 
+void NodeletBase::warnPartial(const std::string& what)
+{
+  int suppressed = 0;
+  if (partial_log_.shouldLog(what, &suppressed))
+  {
+    const std::string note = suppressed > 0 ? " (" + std::to_string(suppressed) + " more like it suppressed)" : "";
+    NODELET_WARN("%s: %s%s", label_.c_str(), what.c_str(), note.c_str());
+  }
+}
+
 std::string NodeletBase::lastDropReason() const
 {
   std::lock_guard<std::mutex> lock(drop_mutex_);

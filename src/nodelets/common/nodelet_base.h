@@ -108,6 +108,9 @@ protected:
   // Counts the frame and logs why (see drop_log.h: each kind at once, then at
   // most every 5 s with the number suppressed meanwhile).
   void dropFrame(const std::string& why);
+  // A frame kept but processed in part (say what was left out): a WARN with
+  // the same throttling per kind as dropFrame().
+  void warnPartial(const std::string& what);
   int framesDropped() const { return frames_dropped_.load(); }
   std::string lastDropReason() const;
 
@@ -147,6 +150,7 @@ private:
   bool stopped_ = false;                                       // under connect_mutex_
   ros::WallTimer diagnostics_wall_timer_;
   DropLog drop_log_;
+  DropLog partial_log_;
   std::atomic<int64_t> callback_cpu_ns_{0};
   std::atomic<int64_t> callbacks_{0};
   std::atomic<int> frames_dropped_{0};

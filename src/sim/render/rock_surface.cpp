@@ -194,7 +194,8 @@ struct FineTexture
   NoiseOctaves octaves;
 };
 
-// Albedo: reddish (R > G > B), features from 25 cm down to texture_scale_m,
+// Albedo: reddish by default (R > G > B; RockParams::green_to_red,
+// blue_to_red), features from 25 cm down to texture_scale_m,
 // R in [albedo_min, albedo_max]; G and B follow with a slowly varying hue;
 // times the optional fine texture, within [0, 1]. The sun and sky shading is
 // baked per vertex (sunlit).
@@ -220,8 +221,8 @@ void RockSurface::paintAlbedo(const RockParams& rc)
       const double n = fractalNoise(x, y, seed ^ 0x51ED27u, tex);
       const double a01 = 0.5 + 0.5 * std::tanh(3.0 * n);
       const double r = rc.albedo_min + (rc.albedo_max - rc.albedo_min) * a01;
-      const double g = r * (0.55 + hue_on * 0.10 * fractalNoise(x, y, seed ^ 0x3C6EF3u, hue));
-      const double b = r * (0.36 + hue_on * 0.08 * fractalNoise(x, y, seed ^ 0x1B873593u, hue));
+      const double g = r * (rc.green_to_red + hue_on * 0.10 * fractalNoise(x, y, seed ^ 0x3C6EF3u, hue));
+      const double b = r * (rc.blue_to_red + hue_on * 0.08 * fractalNoise(x, y, seed ^ 0x1B873593u, hue));
       double f[3];
       fine.factors(x, y, f);
       float* rf = &refl[3 * static_cast<size_t>(k)];

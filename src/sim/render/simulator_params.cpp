@@ -61,6 +61,9 @@ void checkRock(const RockParams& rock, std::ostringstream& why)
     why << "rock relief must stay well in front of the camera (< 0.8 x distance); ";
   if (!(rock.albedo_min >= 0.0 && rock.albedo_min <= rock.albedo_max && rock.albedo_max <= 1.0))
     why << "albedo range [" << rock.albedo_min << ", " << rock.albedo_max << "] must satisfy 0 <= min <= max <= 1; ";
+  if (!(rock.green_to_red >= 0.0 && rock.green_to_red <= 2.0 && rock.blue_to_red >= 0.0 && rock.blue_to_red <= 2.0))
+    why << "rock colour green_to_red " << rock.green_to_red << ", blue_to_red " << rock.blue_to_red
+        << " must be in [0, 2]; ";
   if (!(rock.texture_scale_m >= 0.002 && rock.texture_scale_m <= 1.0))
     why << "texture_scale_m " << rock.texture_scale_m << " is outside [0.002, 1]; ";
   if (!(rock.fine_texture_period_m == 0.0 ||

@@ -61,8 +61,13 @@ struct RockParams
   double width_m = 2.0;     // extent of the target (<= 2 x 2 m)
   double height_m = 2.0;
   double relief_m = 0.15;    // peak-to-peak relief of the height field (0 = flat board)
-  double albedo_min = 0.05;  // reddish textured albedo range (docs/study.md §1.1.3)
+  double albedo_min = 0.05;  // textured albedo range of the red channel (docs/study.md §1.1.3)
   double albedo_max = 0.45;
+  // The rock's colour: its green and blue albedo over its red, before the
+  // slowly varying hue (defaults: the study's reddish rock, G/R 0.55-0.65;
+  // a grey basalt is about 0.9 and 0.85).
+  double green_to_red = 0.55;
+  double blue_to_red = 0.36;
   double texture_scale_m = 0.02;  // size of the finest albedo features (>= 0.1: a weakly textured rock)
   // Optional fine texture (docs/simulator.md, "Rock"): a multiplicative
   // albedo modulation of this period (m; 0 = off; real rock: 0.01-0.03) and

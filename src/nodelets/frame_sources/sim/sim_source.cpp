@@ -74,6 +74,8 @@ void readSceneParams(const ParamReader& read, SimulatorParams* c)
       {"nir_to_red", &c->rock.nir_to_red_ratio},
       {"albedo_min", &c->rock.albedo_min},
       {"albedo_max", &c->rock.albedo_max},
+      {"green_to_red", &c->rock.green_to_red},
+      {"blue_to_red", &c->rock.blue_to_red},
       {"rock_step_height", &c->rock.step_height_m},
       {"rock_step_x", &c->rock.step_x_m},
       {"projector_roll", &c->projector.roll_rad},
