@@ -5,6 +5,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "pose/reference_fusion.h"
+#include "structured_light_stabilizer/common/math.h"
 #include "structured_light_stabilizer/pose/texture_landmarks.h"
 
 namespace structured_light_stabilizer
@@ -47,6 +49,7 @@ struct PoseDeltaEstimator::Frame
   int cols = 0;
   std::vector<Eigen::Vector3d> points;
   BeamSurface surface;
+  double dot_spacing_m = 0.0;  // the dots' median spacing (the surface may be built on a denser map)
 };
 
 struct PoseDeltaEstimator::TextureMeasurement
@@ -54,6 +57,14 @@ struct PoseDeltaEstimator::TextureMeasurement
   TextureObservations observations;
   std::string note;        // why the texture is not used ("" when used or not wanted)
   bool predicted = false;  // the initial guess comes from the coarse texture fit
+};
+
+struct PoseDeltaEstimator::FusionFrame
+{
+  std::vector<Eigen::Vector3d> points;
+  Eigen::Isometry3d pose;  // p_cur = pose * p_ref, solved again as the surface is
+  TextureObservations texture;
+  double sigma_geometry_m = 0.0;
 };
 
 PoseDeltaEstimator::PoseDeltaEstimator(const PoseDeltaParams& config) : texture_(new TextureLandmarks)
@@ -101,6 +112,8 @@ void PoseDeltaEstimator::reset(bool lock_on_next_frame)
 {
   has_reference_ = false;
   reference_.reset();
+  fusion_.clear();
+  fused_ = false;
   texture_->clear();
   last_estimate_ = Eigen::Isometry3d::Identity();
   chained_ = Eigen::Isometry3d::Identity();
@@ -134,17 +147,28 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
   ref->rows = frame.rows;
   ref->cols = frame.cols;
   ref->points = frame.points;
-  ref->surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
+  const bool dense = frame.surface_rows >= 2 && frame.surface_cols >= 2 &&
+                     frame.surface_points.size() == static_cast<size_t>(frame.surface_rows) * frame.surface_cols;
+  if (dense)
+    ref->surface.build(frame.surface_rows, frame.surface_cols, frame.surface_points, config_.max_edge_ratio);
+  if (!dense || ref->surface.empty())
+    ref->surface.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
+  {
+    BeamSurface dots;
+    dots.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
+    ref->dot_spacing_m = dots.medianSpacing();
+  }
   texture_->clear();
   // A strobed pair's ambient frame carries the texture without the dots.
   reference_ambient_ = !frame.ambient_image.empty();
-  const cv::Mat& image = textureImage(frame);
+  const bool lock_image = !reference_ambient_ && !frame.lock_image.empty();
+  const cv::Mat& image = lock_image ? frame.lock_image : textureImage(frame);
   if (config_.use_texture && has_camera_ && !image.empty() && image.cols == camera_.width &&
       image.rows == camera_.height)
   {
     TextureExposure exposure;
     exposure.offset = exposureOffset(frame);
-    exposure.dots_in_image = !reference_ambient_;
+    exposure.dots_in_image = !reference_ambient_ && !lock_image;
     texture_->lock(config_, camera_, image, frame.texture_channel, frame.points, ref->surface, exposure);
     // Two ambient frames around the lock: each feature is lifted where it
     // was at the instant of the points, no velocity needed.
@@ -157,6 +181,8 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
   has_reference_ = true;
   lock_pending_ = false;
   last_estimate_ = Eigen::Isometry3d::Identity();
+  fusion_.clear();
+  fused_ = false;
 }
 
 PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
@@ -195,6 +221,7 @@ PoseDeltaResult PoseDeltaEstimator::process(const PoseDeltaInput& frame)
   const RegistrationOutput reg = registerFrame(frame, texture, initial);
   report(reg, texture, valid_points, &result);
   advance(frame, result, reg);
+  collectForFusion(frame, texture, reg, result);
   track(frame, &result);
   return result;
 }
@@ -454,6 +481,78 @@ void PoseDeltaEstimator::advance(const PoseDeltaInput& frame, const PoseDeltaRes
 
 namespace structured_light_stabilizer
 {
+
+void PoseDeltaEstimator::collectForFusion(const PoseDeltaInput& frame, const TextureMeasurement& texture,
+                                          const RegistrationOutput& reg, const PoseDeltaResult& result)
+{
+  if (fused_ || config_.reference_fusion_frames <= 0 || config_.mode != PoseDeltaMode::kReference || !result.valid)
+    return;
+  fusion_.push_back(FusionFrame{frame.points, reg.transform, texture.observations, reg.sigma_geometry_m});
+  // Refined as the frames come (after 2, 4, 8, ... of them, so that the
+  // frames of the lock period gain too), for the last time after all.
+  const int n = static_cast<int>(fusion_.size());
+  const bool last = n >= config_.reference_fusion_frames;
+  if (last || (n >= 2 && (n & (n - 1)) == 0))
+    fuseReference(last);
+}
+
+// Block coordinate descent on the lock period's poses and one surface: the
+// surface fitted to the lock's dots and every kept frame's dots moved back
+// by its pose, the texture features lifted on it again, each frame
+// registered again against it (the lock fixes the gauge: its pose is the
+// identity). A few rounds settle (the poses move by far less than the
+// surface's spacing).
+void PoseDeltaEstimator::fuseReference(bool last)
+{
+  constexpr int kRounds = 3;
+  fused_ = last;
+  fusion::SurfaceFit fit;
+  fit.spacing_m = reference_->dot_spacing_m;
+  fit.max_edge_ratio = config_.max_edge_ratio;
+  std::vector<double> noise;
+  for (const FusionFrame& f : fusion_)
+    noise.push_back(f.sigma_geometry_m);
+  fit.noise_m = std::max(config_.min_geometry_sigma_m, detail::medianInPlace(noise.begin(), noise.end()));
+  for (int round = 0; round < kRounds; ++round)
+  {
+    std::vector<Eigen::Vector3d> all = reference_->points;
+    for (const FusionFrame& f : fusion_)
+    {
+      const Eigen::Isometry3d back = f.pose.inverse();
+      for (const Eigen::Vector3d& p : f.points)
+        if (isUsablePoint(p))
+          all.push_back(back * p);
+    }
+    BeamSurface fused;
+    if (!fusion::fitSurface(all, fit, &fused))
+      break;
+    reference_->surface = std::move(fused);
+    texture_->relift(reference_->surface, config_);
+    std::vector<TextureObservations> seen;
+    std::vector<Eigen::Isometry3d> poses;
+    for (const FusionFrame& f : fusion_)
+    {
+      seen.push_back(f.texture);
+      poses.push_back(f.pose);
+    }
+    texture_->refineDepths(seen, poses, config_.texture_error_inflation);
+    for (FusionFrame& f : fusion_)
+    {
+      texture_->update(&f.texture.constraints);
+      BeamSurface current;
+      if (config_.symmetric)
+        current.build(reference_->rows, reference_->cols, f.points, config_.max_edge_ratio);
+      const RegistrationOutput reg =
+          registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current : nullptr,
+                            f.points, f.texture, f.pose, config_);
+      if (reg.points_used >= config_.min_points && reg.transform.matrix().allFinite())
+        f.pose = reg.transform;
+    }
+  }
+  last_estimate_ = fusion_.back().pose;
+  if (last)
+    fusion_.clear();
+}
 
 void PoseDeltaEstimator::track(const PoseDeltaInput& frame, PoseDeltaResult* result)
 {

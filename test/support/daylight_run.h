@@ -2,8 +2,13 @@
 // daylight against the simulator's truth (docs/daylight.md, "Measured"):
 // what tools/evaluate_daylight prints and test_daylight_rig asserts. Per case
 // (a distance and a rock seed): recall (spots within 3 px of their true pixel,
-// one to one) pooled and its worst frame, centroid RMS, wrong beams, depth
-// RMS, pose RMS against the truth and the share of valid poses.
+// one to one) pooled and its worst frame; the centroid against two truths,
+// the beam's hit point (what depth needs; also its part along the epipolar
+// line, the only part that moves the depth) and the dot's own light (what a
+// detector can reach: SimFrame::light_centroids, and footprint_centroids
+// for the light over the albedo), with how far the light itself lies from
+// the hit point; wrong beams, depth RMS (mm and % of z), pose RMS against
+// the truth and the share of valid poses.
 #pragma once
 
 #include <algorithm>
@@ -23,7 +28,10 @@
 #include "structured_light_stabilizer/sim/render/simulator.h"
 #include "structured_light_stabilizer/detection/spot_detector.h"
 #include "structured_light_stabilizer/triangulation/triangulator.h"
+#include "support/centroid_truth.h"
+#include "support/scene_ablations.h"
 #include "support/spot_score.h"
+#include "support/stage_settings.h"
 
 namespace structured_light_stabilizer
 {
@@ -54,27 +62,28 @@ struct Options
   bool extrapolate = false;   // strobed: the ambient from the two frames before (a nodelet that does not wait)
   bool full_resolution_tracking = false;  // strobed: track the ambient frames' motion at full resolution
   bool true_ambient = false;  // strobed: the projector-off render at the on-frame's own time (the upper bound)
-  int detect_threshold = -1, min_peak = -1;  // >= 0: the SpotDetector's fast.detect_threshold / fast.min_peak
   // The camera's encoding (SensorOutput) and a 16-bit output's converter
   // bits; empty: the rig's camera as designed (bgr16 at its output_bits when
   // more than 8), bgr8 without a rig.
   std::string output;
   int output_bits = 16;
-  double albedo_floor = -1.0;  // >= 0: the SpotDetector's fast.albedo_floor_dn
   double focus_m = -1.0;       // > 0: the lens's focus distance (default: the simulator's, 1 m)
   int rock_subsample = 0;      // > 0: SimulatorParams::rock_subsample
   bool unrounded = true;       // strobed: the ambient estimate unrounded (CV_32F)
   double relief = 0.15;        // the rock's peak-to-peak relief (m; 0: a flat rock)
   bool noise_free = false;     // no shot nor read noise (quantisation stays): what the geometry alone leaves
+  sls_test::StageSettings settings;    // the detector's, Triangulator's and PoseDelta's (--param)
+  sls_test::SceneAblations ablations;  // vignetting, grid, noise, relief (applied last)
 };
 
 struct Stats
 {
-  Score spots;
+  Score spots;  // against the hit points
+  sls_test::TruthErrors truths;
   double worst_frame_recall = 1.0;
   double worst_frame_rms = 0.0;  // the largest centroid RMS of one frame (px)
   int wrong_beams = 0, beams = 0;
-  double depth2 = 0.0;
+  double depth2 = 0.0, depth_rel2 = 0.0;  // 3D error (m^2); depth error over depth, squared
   int depth_n = 0;
   double t2 = 0.0, r2 = 0.0;
   int poses = 0, valid = 0;
@@ -82,27 +91,32 @@ struct Stats
   void add(const Stats& o)
   {
     spots.add(o.spots);
+    truths.add(o.truths);
     worst_frame_recall = std::min(worst_frame_recall, o.worst_frame_recall);
     worst_frame_rms = std::max(worst_frame_rms, o.worst_frame_rms);
     wrong_beams += o.wrong_beams;
     beams += o.beams;
     depth2 += o.depth2;
+    depth_rel2 += o.depth_rel2;
     depth_n += o.depth_n;
     t2 += o.t2;
     r2 += o.r2;
     poses += o.poses;
     valid += o.valid;
   }
+  double depthPercent() const { return depth_n ? 100.0 * std::sqrt(depth_rel2 / depth_n) : NAN; }
   std::string line() const
   {
-    char buf[400];
+    char buf[600];
     std::snprintf(buf, sizeof(buf),
-                  "recall %.4f (worst frame %.3f), centroid %.4f px (worst frame %.4f), false %.2f/frame, wrong beams "
-                  "%d of %d, depth "
-                  "%.2f mm, pose %.3f mm / %.4f deg RMS, valid %.1f %%",
-                  spots.recall(), worst_frame_recall, spots.rms(), worst_frame_rms, spots.falsePerFrame(), wrong_beams,
-                  beams, depth_n ? 1e3 * std::sqrt(depth2 / depth_n) : NAN, poses ? std::sqrt(t2 / poses) : NAN,
-                  poses ? std::sqrt(r2 / poses) : NAN, poses ? 100.0 * valid / poses : NAN);
+                  "recall %.4f (worst frame %.3f), centroid %.4f px (worst frame %.4f; along the epipolar line "
+                  "%.4f; against the light %.4f, its footprint %.4f; light from hit %.4f), false %.2f/frame, wrong "
+                  "beams %d of %d, depth %.2f mm (%.4f %% of z), pose %.3f mm / %.4f deg RMS, valid %.1f %%",
+                  spots.recall(), worst_frame_recall, spots.rms(), worst_frame_rms, truths.rms(truths.along2),
+                  truths.rms(truths.light2), truths.rms(truths.footprint2), truths.rms(truths.light_hit2),
+                  spots.falsePerFrame(), wrong_beams, beams, depth_n ? 1e3 * std::sqrt(depth2 / depth_n) : NAN,
+                  depthPercent(), poses ? std::sqrt(t2 / poses) : NAN, poses ? std::sqrt(r2 / poses) : NAN,
+                  poses ? 100.0 * valid / poses : NAN);
     return buf;
   }
 };
@@ -147,6 +161,8 @@ inline SimulatorParams sceneFor(const Options& o, double distance, uint32_t seed
     p.rock.albedo_min = p.rock.albedo_max = o.albedo;
     p.rock.fine_texture_period_m = 0.0;
   }
+  o.ablations.apply(&p);
+  p.dot_centroid_truth = true;
   return p;
 }
 
@@ -203,16 +219,12 @@ inline int wrongBeams(const Spots& spots, const TriangulationResult& tri, const 
 inline Stats runCase(const Options& o, double distance, uint32_t seed)
 {
   const Simulator sim(sceneFor(o, distance, seed));
-  SpotDetectorParams dp;
-  if (o.detect_threshold >= 0)
-    dp.fast.detect_threshold = o.detect_threshold;
-  if (o.min_peak >= 0)
-    dp.fast.min_peak = o.min_peak;
-  if (o.albedo_floor >= 0.0)
-    dp.fast.albedo_floor_dn = o.albedo_floor;
+  SpotDetectorParams dp = o.settings.detector;
+  dp.projector_rows = sim.projector().rows;
+  dp.projector_cols = sim.projector().cols;
   SpotDetector detector(dp);
-  const Triangulator tri(sim.camera(), sim.projector());
-  PoseDeltaEstimator pose((PoseDeltaParams()));
+  const Triangulator tri(sim.camera(), sim.projector(), o.settings.triangulator);
+  PoseDeltaEstimator pose(o.settings.pose);
   pose.setCamera(sim.camera());
   Stats st;
   FrameRequest off;
@@ -254,6 +266,7 @@ inline Stats runCase(const Options& o, double distance, uint32_t seed)
     st.worst_frame_recall = std::min(st.worst_frame_recall, sc.recall());
     if (sc.matched > 0)
       st.worst_frame_rms = std::max(st.worst_frame_rms, sc.rms());
+    st.truths.add(sls_test::truthErrors(det.spots, f, sim));
     const TriangulationResult tr = tri.process(det.spots);
     st.wrong_beams += wrongBeams(det.spots, tr, f);
     for (size_t b = 0; b < tr.points.size(); ++b)
@@ -261,6 +274,8 @@ inline Stats runCase(const Options& o, double distance, uint32_t seed)
       {
         ++st.beams;
         st.depth2 += (tr.points[b] - f.points[b]).squaredNorm();
+        const double rel = (tr.points[b].z() - f.points[b].z()) / f.points[b].z();
+        st.depth_rel2 += rel * rel;
         ++st.depth_n;
       }
     PoseDeltaInput in;

@@ -25,6 +25,8 @@
 #include "structured_light_stabilizer/sim/render/simulator.h"
 #include "structured_light_stabilizer/detection/spot_detector.h"
 #include "structured_light_stabilizer/triangulation/triangulator.h"
+#include "support/centroid_truth.h"
+#include "support/stage_settings.h"
 
 namespace sls_test
 {
@@ -50,7 +52,26 @@ struct ChainScene
   // With a 16-bit camera (sim.sensor.output bgr16): PoseDelta gets the frame
   // converted to bgr8 (as its nodelet did before it read 16 bits).
   bool pose_reads_8bit = false;
+  // Experiments (evaluate_pose_delta's flags). The reference surface from the
+  // simulator's rock at the lock (PoseDeltaInput::surface_points: camera
+  // rays every kTrueSurfaceStepPx pixels cast onto it) instead of the
+  // surface through the dots: over the dots' box (what the registration
+  // reads) or over the whole image (the texture features' depths too).
+  enum class TrueSurface
+  {
+    kNone,
+    kDotBox,
+    kImage
+  };
+  TrueSurface true_surface = TrueSurface::kNone;
+  // The lock's texture from a projector-off exposure of its instant
+  // (PoseDeltaInput::lock_image): features on the dots too.
+  bool projector_off_lock = false;
 };
+
+// Spacing (px) of the camera rays of a true reference surface: 1.8 cm at
+// 1.5 m, a tenth of the rock's smallest relief features.
+constexpr int kTrueSurfaceStepPx = 12;
 
 // The rig jitter of the issue: +-10 mm, +-1 deg per axis.
 inline SimulatorParams chainBase(uint32_t seed)
@@ -124,15 +145,19 @@ struct ChainFrame
   int spots = 0;                                            // detected (before dropping)
   int points = 0;                                           // triangulated beams
   int wrong_beams = 0;                                      // points more than 5 mm from their beam's true hit point
+  TruthErrors truths;      // the spots' centroids (with SimulatorParams::dot_centroid_truth)
+  double depth_rel2 = 0.0;  // sum over the points of (depth error / depth)^2
 };
 
 class PoseChain
 {
 public:
-  explicit PoseChain(const ChainScene& scene)
+  explicit PoseChain(const ChainScene& scene, const StageSettings& settings = StageSettings())
     : scene_(scene),
       sim_(scene.sim),
-      triangulator_(std::make_shared<const Triangulator>(sim_.camera(), sim_.projector())),
+      detector_(settings.detector),
+      triangulator_(std::make_shared<const Triangulator>(sim_.camera(), sim_.projector(), settings.triangulator)),
+      tracker_(settings.tracker),
       rng_(scene.sim.rock.seed * 7919u + 13u)
   {
   }
@@ -149,6 +174,7 @@ public:
     const SpotDetectionResult det = detector_.detect(f.image, format);
     Spots spots = det.ok ? det.spots : Spots();
     out.spots = static_cast<int>(spots.size());
+    out.truths = truthErrors(spots, f, sim_);
     std::uniform_real_distribution<double> uni(0.0, 1.0);
     Spots kept;
     for (const Spot& s : spots)
@@ -184,11 +210,73 @@ public:
       ++out.points;
       const bool far = !f.points[b].allFinite() || (tri.points[b] - f.points[b]).norm() > 0.005;
       out.wrong_beams += far ? 1 : 0;
+      if (!far)
+      {
+        const double rel = (tri.points[b].z() - f.points[b].z()) / f.points[b].z();
+        out.depth_rel2 += rel * rel;
+      }
     }
     return out;
   }
 
+  // The frame at t that becomes the reference, with what the scene's
+  // experiments add to a lock.
+  ChainFrame lockFrame(double t)
+  {
+    ChainFrame f = frame(t);
+    if (scene_.projector_off_lock)
+    {
+      FrameRequest off;
+      off.projector_on = false;
+      f.input.lock_image = sim_.render(t, off).image;
+      if (scene_.mono)
+        cv::cvtColor(f.input.lock_image, f.input.lock_image, cv::COLOR_BGR2GRAY);
+      if (scene_.pose_reads_8bit && f.input.lock_image.depth() == CV_16U)
+        f.input.lock_image.convertTo(f.input.lock_image, CV_8U, 1.0 / 257.0);
+    }
+    if (scene_.true_surface != ChainScene::TrueSurface::kNone)
+      trueSurface(t, f.input.points, &f.input);
+    return f;
+  }
+
 private:
+  // The simulator's rock under a grid of camera rays at time t (camera
+  // frame at t): over the dots' box (half a dot spacing around it) or the
+  // whole image.
+  void trueSurface(double t, const std::vector<Eigen::Vector3d>& dots, PoseDeltaInput* in) const
+  {
+    const CameraModel& cam = sim_.camera();
+    cv::Rect2d box(0, 0, cam.width - 1, cam.height - 1);
+    if (scene_.true_surface == ChainScene::TrueSurface::kDotBox)
+    {
+      std::vector<cv::Point2f> px;
+      for (const Eigen::Vector3d& p : dots)
+        if (p.allFinite())
+        {
+          const cv::Point2d q = cam.project(p);
+          px.emplace_back(static_cast<float>(q.x), static_cast<float>(q.y));
+        }
+      if (px.size() < 4)
+        return;
+      const cv::Rect r = cv::boundingRect(px);
+      const double margin = 0.5 * std::sqrt(static_cast<double>(r.area()) / px.size());
+      box = cv::Rect2d(r.x - margin, r.y - margin, r.width + 2 * margin, r.height + 2 * margin) &
+            cv::Rect2d(0, 0, cam.width - 1, cam.height - 1);
+    }
+    in->surface_cols = static_cast<int>(box.width / kTrueSurfaceStepPx) + 1;
+    in->surface_rows = static_cast<int>(box.height / kTrueSurfaceStepPx) + 1;
+    in->surface_points.assign(static_cast<size_t>(in->surface_rows) * in->surface_cols,
+                              Eigen::Vector3d::Constant(std::nan("")));
+    for (int r = 0; r < in->surface_rows; ++r)
+      for (int c = 0; c < in->surface_cols; ++c)
+      {
+        const cv::Point2d px(box.x + c * kTrueSurfaceStepPx, box.y + r * kTrueSurfaceStepPx);
+        Eigen::Vector3d hit;
+        if (sim_.intersect(t, Eigen::Vector3d::Zero(), cam.ray(px).normalized(), &hit))
+          in->surface_points[r * in->surface_cols + c] = hit;
+      }
+  }
+
   ChainScene scene_;
   Simulator sim_;
   SpotDetector detector_;
@@ -219,6 +307,8 @@ struct ChainTally
   Eigen::Matrix<double, 6, 1> sigma2 = Eigen::Matrix<double, 6, 1>::Zero();
   int frames = 0, valid = 0, in_plane_unobservable = 0, wrong_beams = 0, points = 0;
   double features = 0, sigma_texture_px = 0, sigma_geometry_mm = 0;  // sums over the frames
+  TruthErrors truths;
+  double depth_rel2 = 0.0;
 
   void add(const Eigen::Matrix<double, 6, 1>& e, const PoseDeltaResult& r, const ChainFrame& f)
   {
@@ -231,6 +321,8 @@ struct ChainTally
     ++frames;
     wrong_beams += f.wrong_beams;
     points += f.points;
+    truths.add(f.truths);
+    depth_rel2 += f.depth_rel2;
     features += r.features_used;
     sigma_texture_px += r.sigma_texture_px;
     sigma_geometry_mm += r.sigma_geometry_m * 1e3;
@@ -258,6 +350,8 @@ struct ChainTally
     in_plane_unobservable += o.in_plane_unobservable;
     wrong_beams += o.wrong_beams;
     points += o.points;
+    truths.add(o.truths);
+    depth_rel2 += o.depth_rel2;
     features += o.features;
     sigma_texture_px += o.sigma_texture_px;
     sigma_geometry_mm += o.sigma_geometry_mm;
@@ -266,17 +360,22 @@ struct ChainTally
   double rmsTmm() const { return std::sqrt(t2_valid / std::max(valid, 1)); }
   double rmsRdeg() const { return std::sqrt(r2_valid / std::max(valid, 1)); }
   double validFraction() const { return frames > 0 ? static_cast<double>(valid) / frames : 0.0; }
+  // RMS depth error of the right points, % of z.
+  double depthPercent() const
+  {
+    return points > wrong_beams ? 100.0 * std::sqrt(depth_rel2 / (points - wrong_beams)) : NAN;
+  }
 };
 
 // Locks at `t_lock` and runs `frames` frames dt apart through the chain.
 // `log` (optional) gets one line per invalid frame.
-inline ChainTally runChain(const ChainScene& scene, const PoseDeltaParams& params, double t_lock, int frames,
+inline ChainTally runChain(const ChainScene& scene, const StageSettings& settings, double t_lock, int frames,
                            double dt = 0.1, std::string* log = nullptr)
 {
-  PoseChain chain(scene);
-  PoseDeltaEstimator est(params);
+  PoseChain chain(scene, settings);
+  PoseDeltaEstimator est(settings.pose);
   est.setCamera(chain.simulator().camera());
-  const ChainFrame f0 = chain.frame(t_lock);
+  const ChainFrame f0 = chain.lockFrame(t_lock);
   const PoseDeltaResult r0 = est.process(f0.input);
   ChainTally tally;
   if (log && !r0.locked_now)
@@ -291,6 +390,14 @@ inline ChainTally runChain(const ChainScene& scene, const PoseDeltaParams& param
       *log += "  frame " + std::to_string(k) + ": " + r.status + "\n";
   }
   return tally;
+}
+
+inline ChainTally runChain(const ChainScene& scene, const PoseDeltaParams& params, double t_lock, int frames,
+                           double dt = 0.1, std::string* log = nullptr)
+{
+  StageSettings settings;
+  settings.pose = params;
+  return runChain(scene, settings, t_lock, frames, dt, log);
 }
 
 }  // namespace sls_test

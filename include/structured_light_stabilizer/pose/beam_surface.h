@@ -43,6 +43,8 @@ public:
   bool empty() const { return valid_cells_ == 0; }
   // Median distance between neighbouring beam points (metres).
   double medianSpacing() const { return median_edge_; }
+  // The map it was built on (rows * cols points).
+  const std::vector<Eigen::Vector3d>& points() const { return points_; }
 
   // S(u, v) and its partial derivatives. False outside the valid cells.
   bool evaluate(double u, double v, Eigen::Vector3d* s, Eigen::Vector3d* s_u = nullptr,

@@ -76,6 +76,21 @@ struct PoseDeltaInput
   double ambient_stamp_s = std::numeric_limits<double>::quiet_NaN();
   cv::Mat ambient_after_image;
   double ambient_after_stamp_s = std::numeric_limits<double>::quiet_NaN();
+  // Read only when this frame becomes the reference (each optional):
+  //  - lock_image: a projector-off exposure of the same instant (same
+  //    conventions as `image`), without strobing: the reference texture is
+  //    chosen in it (nothing masked, features on the dots too, where the
+  //    surface is the triangulated depth); later frames are tracked in
+  //    `image` as usual;
+  //  - surface_points: a denser organised map of the same rock at the same
+  //    instant (surface_rows x surface_cols, camera frame, NaN = missing,
+  //    e.g. the true rock of a simulation) on which the reference surface is
+  //    built instead of the beam map (the registration and the texture's
+  //    depths use it; the beam map stays the reference points).
+  cv::Mat lock_image;
+  int surface_rows = 0;
+  int surface_cols = 0;
+  std::vector<Eigen::Vector3d> surface_points;
 };
 
 struct PoseDeltaResult
@@ -161,6 +176,12 @@ private:
   bool refit(const PoseDeltaInput& frame, const TextureObservations& texture, const PoseDeltaParams& params,
              Eigen::Isometry3d* pose) const;
   void lock(const PoseDeltaInput& frame);
+  // The lock period (reference_fusion_frames): a valid frame's points, pose
+  // and texture kept; with enough of them the reference surface is fitted
+  // to all their points and their poses solved again, in turn.
+  void collectForFusion(const PoseDeltaInput& frame, const TextureMeasurement& texture,
+                        const RegistrationOutput& reg, const PoseDeltaResult& result);
+  void fuseReference(bool last);
 
   PoseDeltaParams config_;
   CameraModel camera_;
@@ -177,6 +198,9 @@ private:
   bool reference_ambient_ = false;             // the reference texture comes from an ambient frame
   Vector6d lock_velocity_ = Vector6d::Zero();  // the rig's velocity at the lock
   bool lock_velocity_known_ = false;
+  struct FusionFrame;
+  std::vector<FusionFrame> fusion_;  // the lock period's frames so far
+  bool fused_ = false;               // the reference surface was refined since the lock
 };
 
 }  // namespace structured_light_stabilizer

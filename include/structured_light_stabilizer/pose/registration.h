@@ -44,6 +44,7 @@ struct TextureConstraint
   // Measured covariance of the observation (pixels^2, scaled by focal_px);
   // zero = unknown (the robust scale of all features alone weights it).
   Eigen::Matrix2d covariance_px = Eigen::Matrix2d::Zero();
+  int landmark = -1;  // the reference feature it observes (TextureLandmarks' index), -1 = none
 };
 
 // A frame's texture constraints. The image they come from was exposed at the

@@ -90,6 +90,22 @@ public:
                      const std::vector<Eigen::Vector3d>& points, const BeamSurface& surface,
                      const PoseDeltaParams& config);
 
+  // The reference surface was refined (the same rock, the same reference
+  // frame): each feature lifted on it again where its ray meets it (the
+  // others keep their depth). Features of an image exposed away from the
+  // points (a strobed ambient frame with a velocity offset) are kept.
+  void relift(const BeamSurface& surface, const PoseDeltaParams& config);
+  // Constraints of earlier frames take their features' current 3D points.
+  void update(std::vector<TextureConstraint>* constraints) const;
+  // The lock period's frames saw each feature from other poses (frame j at
+  // poses[j], its image exposed at frames[j].offset * poses[j]): its depth
+  // along its ray fitted to them and to its prior (the parallax of the
+  // rig's motion), its 1-sigma becoming the fit's, the measured
+  // covariances inflated by `inflation` (the features' errors are
+  // correlated). Features of an image exposed away from the points are kept.
+  void refineDepths(const std::vector<TextureObservations>& frames, const std::vector<Eigen::Isometry3d>& poses,
+                    double inflation);
+
 private:
   // How many features trackCoarse() tracks: enough to fix the in-plane axes
   // for a prediction, at a fraction of the cost of all.
@@ -114,10 +130,21 @@ private:
                                              const std::vector<cv::Matx22d>* covariance = nullptr) const;
   std::vector<TextureConstraint> trackPyramidal(const Eigen::Isometry3d& T, const std::vector<uint8_t>& which);
 
+  // The image the tracker reads: `image` itself, or with
+  // PoseDeltaParams::texture_flat_field its `*channel` over the lens's
+  // natural vignetting (a 16-bit copy, brightest corner unchanged); then
+  // *channel is 0.
+  cv::Mat trackedImage(const cv::Mat& image, int* channel) const;
+
   TextureTracker tracker_;
+  cv::Mat flat_field_gain_;               // CV_32F, per pixel; empty: no flat field
   std::vector<Eigen::Vector3d> points_;   // the features lifted to 3D, reference camera frame
   std::vector<Eigen::Vector3d> normals_;  // of the rock at each feature (reference surface or plane)
   std::vector<double> depth_sigma_;       // 1-sigma of each feature's depth (0 = fixed)
+  // Where each feature was lifted and its 1-sigma then: refineDepths()'s prior.
+  std::vector<Eigen::Vector3d> lifted_points_;
+  std::vector<double> lifted_sigma_;
+  bool lifted_at_points_ = true;          // the features were lifted at the instant of the points
   bool has_image_ = false;
   // The frame being tracked.
   CameraModel camera_;

@@ -30,7 +30,6 @@ public:
       reference_(reference),
       current_surface_(current_surface != nullptr && !current_surface->empty() ? current_surface : nullptr),
       current_(current),
-      cols_(std::max(reference_surface.cols(), 1)),
       direction_weight_(current_surface_ ? 0.5 : 1.0),
       uv_forward_(current.size()),
       uv_reverse_(reference.size()),
@@ -38,9 +37,10 @@ public:
       feet_reverse_(reference.size())
   {
     for (size_t i = 0; i < current.size(); ++i)
-      uv_forward_[i] = gridPoint(i);
-    for (size_t j = 0; j < reference.size(); ++j)
-      uv_reverse_[j] = gridPoint(j);
+      uv_forward_[i] = gridPoint(reference_surface_, i, current.size());
+    if (current_surface_)
+      for (size_t j = 0; j < reference.size(); ++j)
+        uv_reverse_[j] = gridPoint(*current_surface_, j, reference.size());
   }
 
   // Linearises at T and adds the Huber-weighted rows. Each direction has
@@ -103,9 +103,16 @@ private:
     Eigen::Vector3d normal;
   };
 
-  Eigen::Vector2d gridPoint(size_t beam) const
+  // Where the foot search of beam `beam` of a map of `points` beams starts:
+  // the beam's own grid point on a surface built on a beam map (the beam
+  // hits the rock near where it hit it there), none (the nearest surface
+  // point) on a surface built on another grid (a denser map of the rock).
+  static Eigen::Vector2d gridPoint(const BeamSurface& surface, size_t beam, size_t points)
   {
-    return Eigen::Vector2d(static_cast<double>(beam / cols_), static_cast<double>(beam % cols_));
+    const size_t cols = static_cast<size_t>(std::max(surface.cols(), 1));
+    if (static_cast<size_t>(surface.rows()) * cols != points)
+      return Eigen::Vector2d::Constant(detail::kNaN);
+    return Eigen::Vector2d(static_cast<double>(beam / cols), static_cast<double>(beam % cols));
   }
 
   // The foot of x on `surface` (point `index`), null when there is none. A
@@ -129,7 +136,7 @@ private:
         cached->from = Eigen::Vector3d::Constant(detail::kNaN);
       return cached;
     }
-    *uv = gridPoint(index);
+    *uv = gridPoint(surface, index, &surface == &reference_surface_ ? current_.size() : reference_.size());
     cached->from = Eigen::Vector3d::Constant(detail::kNaN);
     return nullptr;
   }
@@ -188,7 +195,6 @@ private:
   const std::vector<Eigen::Vector3d>& reference_;
   const BeamSurface* current_surface_;  // null: one direction only
   const std::vector<Eigen::Vector3d>& current_;
-  const size_t cols_;
   const double direction_weight_;
   std::vector<Eigen::Vector2d> uv_forward_, uv_reverse_;  // where each foot was found last
   std::vector<Foot> feet_forward_, feet_reverse_;

@@ -101,6 +101,29 @@ bool lift(const cv::Point2f& f, const CameraModel& camera, const BeamSurface& su
   return true;
 }
 
+// Per pixel, the brightest corner's natural vignetting over the pixel's own
+// (cos^4 of the off-axis angle of its camera ray): 1 in that corner, about
+// 0.45 at the centre of a 53 deg lens.
+cv::Mat vignettingGain(const CameraModel& camera, const cv::Size& size)
+{
+  cv::Mat gain(size, CV_32F);
+  double darkest = 1.0;
+  for (int y = 0; y < size.height; ++y)
+  {
+    float* row = gain.ptr<float>(y);
+    for (int x = 0; x < size.width; ++x)
+    {
+      const Eigen::Vector3d ray = camera.ray(cv::Point2d(x, y));
+      const double q = ray.squaredNorm() / (ray.z() * ray.z());  // 1 / cos^2
+      const double cos4 = 1.0 / (q * q);
+      row[x] = static_cast<float>(1.0 / cos4);
+      darkest = std::min(darkest, cos4);
+    }
+  }
+  gain *= darkest;
+  return gain;
+}
+
 }  // namespace
 
 std::vector<cv::Point2f> projectPoints(const CameraModel& camera, const std::vector<Eigen::Vector3d>& points)
@@ -133,7 +156,12 @@ void TextureLandmarks::lock(const PoseDeltaParams& config, const CameraModel& ca
     for (Eigen::Vector3d& p : seen)
       if (isUsablePoint(p))
         p = exposure.offset * p;
-    moved_surface.build(surface.rows(), surface.cols(), seen, config.max_edge_ratio);
+    // (The surface may be built on a denser map than the beams'.)
+    std::vector<Eigen::Vector3d> map = surface.points();
+    for (Eigen::Vector3d& p : map)
+      if (isUsablePoint(p))
+        p = exposure.offset * p;
+    moved_surface.build(surface.rows(), surface.cols(), map, config.max_edge_ratio);
   }
   const BeamSurface& in_image = moved ? moved_surface : surface;
   // Features where the dot map gives depth (the box of the dots) or, by
@@ -143,7 +171,10 @@ void TextureLandmarks::lock(const PoseDeltaParams& config, const CameraModel& ca
   if (dots.empty())
     return;
   const cv::Rect region = config.texture_whole_image ? cv::Rect(0, 0, image.cols, image.rows) : cv::boundingRect(dots);
-  tracker_.setReference(image, channel, region, exposure.dots_in_image ? dots : std::vector<cv::Point2f>());
+  if (config.texture_flat_field)
+    flat_field_gain_ = vignettingGain(camera, image.size());
+  const cv::Mat tracked = trackedImage(image, &channel);
+  tracker_.setReference(tracked, channel, region, exposure.dots_in_image ? dots : std::vector<cv::Point2f>());
   const Plane plane = fitPlane(seen);
   const double outside_sigma = std::max(config.texture_extrapolated_depth_sigma_m, 3.0 * plane.rms);
   std::vector<uint8_t> keep(tracker_.features().size(), 0);
@@ -159,13 +190,120 @@ void TextureLandmarks::lock(const PoseDeltaParams& config, const CameraModel& ca
     depth_sigma_.push_back(l.depth_sigma);
   }
   tracker_.retain(keep);
+  lifted_points_ = points_;
+  lifted_sigma_ = depth_sigma_;
+  lifted_at_points_ = !moved;
   has_image_ = true;
+}
+
+void TextureLandmarks::relift(const BeamSurface& surface, const PoseDeltaParams& config)
+{
+  if (!lifted_at_points_)
+    return;
+  for (size_t k = 0; k < points_.size(); ++k)
+  {
+    Eigen::Vector2d uv(detail::kNaN, detail::kNaN);
+    Eigen::Vector3d hit, S, Su, Sv;
+    if (!surface.intersectRay(points_[k], &uv, &hit) || !surface.evaluate(uv.x(), uv.y(), &S, &Su, &Sv))
+      continue;
+    points_[k] = lifted_points_[k] = hit;
+    normals_[k] = Su.cross(Sv).normalized();
+    depth_sigma_[k] = lifted_sigma_[k] = config.texture_depth_sigma_m;
+  }
+}
+
+void TextureLandmarks::refineDepths(const std::vector<TextureObservations>& frames,
+                                    const std::vector<Eigen::Isometry3d>& poses, double inflation)
+{
+  // Whitened residuals beyond this are another feature's or an outlier's.
+  constexpr double kGate = 4.0;
+  constexpr int kIterations = 2;
+  if (!lifted_at_points_ || frames.size() != poses.size() || lifted_points_.size() != points_.size())
+    return;
+  // Each feature's observations: (frame, constraint).
+  std::vector<std::vector<std::pair<size_t, size_t>>> seen(points_.size());
+  for (size_t j = 0; j < frames.size(); ++j)
+    for (size_t i = 0; i < frames[j].constraints.size(); ++i)
+    {
+      const int k = frames[j].constraints[i].landmark;
+      if (k >= 0 && static_cast<size_t>(k) < points_.size())
+        seen[k].emplace_back(j, i);
+    }
+  for (size_t k = 0; k < points_.size(); ++k)
+  {
+    const double sigma0 = lifted_sigma_[k];
+    if (!(sigma0 > 0.0) || seen[k].empty())
+      continue;
+    const Eigen::Vector3d ray = lifted_points_[k].normalized();
+    const double d0 = lifted_points_[k].norm();
+    double d = d0, info = 0.0;
+    for (int it = 0; it < kIterations; ++it)
+    {
+      info = 1.0 / (sigma0 * sigma0);
+      double g = (d - d0) * info;
+      for (const auto& ji : seen[k])
+      {
+        const TextureObservations& obs = frames[ji.first];
+        const TextureConstraint& c = obs.constraints[ji.second];
+        const Eigen::Matrix2d cov = c.covariance_px * inflation * inflation;
+        if (!(cov.determinant() > 0.0))
+          continue;
+        const Eigen::Isometry3d& T = poses[ji.first];
+        const Eigen::Vector3d y = obs.offset * (T * Eigen::Vector3d(d * ray));
+        if (!(y.z() > 1e-6))
+          continue;
+        const double iz = 1.0 / y.z();
+        Eigen::Matrix<double, 2, 3> dpi;
+        dpi << iz, 0.0, -y.x() * iz * iz, 0.0, iz, -y.y() * iz * iz;
+        const Eigen::Vector2d J = obs.focal_px * dpi * (obs.offset.linear() * T.linear() * ray);
+        const Eigen::Vector2d r =
+            obs.focal_px * (Eigen::Vector2d(y.x() * iz, y.y() * iz) - c.observed_normalized);
+        const Eigen::Matrix2d W = cov.inverse();
+        if (r.dot(W * r) > kGate * kGate)
+          continue;
+        info += J.dot(W * J);
+        g += J.dot(W * r);
+      }
+      d -= g / info;
+    }
+    if (!(d > 0.0) || !std::isfinite(d))
+      continue;
+    points_[k] = d * ray;
+    depth_sigma_[k] = 1.0 / std::sqrt(info);
+  }
+}
+
+void TextureLandmarks::update(std::vector<TextureConstraint>* constraints) const
+{
+  for (TextureConstraint& c : *constraints)
+    if (c.landmark >= 0 && static_cast<size_t>(c.landmark) < points_.size())
+    {
+      c.point_ref = points_[c.landmark];
+      c.depth_sigma_m = depth_sigma_[c.landmark];
+    }
 }
 
 void TextureLandmarks::clear()
 {
   dropFeatures();
+  flat_field_gain_.release();
   has_image_ = false;
+}
+
+cv::Mat TextureLandmarks::trackedImage(const cv::Mat& image, int* channel) const
+{
+  if (flat_field_gain_.empty() || image.size() != flat_field_gain_.size() || image.empty())
+    return image;
+  cv::Mat plane, level;
+  if (image.channels() > 1)
+    cv::extractChannel(image, plane, std::min(std::max(*channel, 0), image.channels() - 1));
+  else
+    plane = image;
+  plane.convertTo(level, CV_32F, image.depth() == CV_16U ? 1.0 : 257.0);
+  cv::Mat flat;
+  cv::Mat(level.mul(flat_field_gain_)).convertTo(flat, CV_16U);
+  *channel = 0;
+  return flat;
 }
 
 void TextureLandmarks::dropFeatures()
@@ -174,6 +312,8 @@ void TextureLandmarks::dropFeatures()
   points_.clear();
   normals_.clear();
   depth_sigma_.clear();
+  lifted_points_.clear();
+  lifted_sigma_.clear();
 }
 
 bool TextureLandmarks::setFrame(const CameraModel& camera, const cv::Mat& image, int channel,
@@ -181,7 +321,7 @@ bool TextureLandmarks::setFrame(const CameraModel& camera, const cv::Mat& image,
 {
   camera_ = camera;
   dots_ = dots_in_image ? projectPoints(camera, points) : std::vector<cv::Point2f>();
-  return tracker_.setFrame(image, channel);
+  return tracker_.setFrame(trackedImage(image, &channel), channel);
 }
 
 std::vector<cv::Point2f> TextureLandmarks::predict(const Eigen::Isometry3d& T, std::vector<cv::Matx22d>* warps) const
@@ -233,6 +373,7 @@ std::vector<TextureConstraint> TextureLandmarks::constraints(const std::vector<c
     tc.point_ref = points_[k];
     tc.observed_normalized = camera_.normalize(cv::Point2d(tracked[k].x, tracked[k].y));
     tc.depth_sigma_m = depth_sigma_[k];
+    tc.landmark = static_cast<int>(k);
     if (covariance)
     {
       const cv::Matx22d& m = (*covariance)[k];
@@ -324,9 +465,10 @@ std::vector<TextureConstraint> TextureLandmarks::refineBetween(const Eigen::Isom
 {
   Refined a, b;
   dots_.clear();
-  if (tracker_.setFrame(first, channel))
+  int first_channel = channel, second_channel = channel;
+  if (tracker_.setFrame(trackedImage(first, &first_channel), first_channel))
     a = refine(T_first);
-  if (tracker_.setFrame(second, channel) && a.ok.size() == points_.size())
+  if (tracker_.setFrame(trackedImage(second, &second_channel), second_channel) && a.ok.size() == points_.size())
     b = refineFrom(a, T_second);
   if (a.ok.size() != points_.size() || b.ok.size() != points_.size())
     return {};
@@ -348,7 +490,7 @@ void TextureLandmarks::centreBetween(const cv::Mat& second, int channel, double 
 {
   camera_ = camera;
   dots_.clear();
-  if (points_.empty() || !tracker_.setFrame(second, channel))
+  if (points_.empty() || !tracker_.setFrame(trackedImage(second, &channel), channel))
     return;
   // Where each reference feature is in the second exposure: tracked over
   // the pyramid (the rig's motion over the gap is not known yet), refined.
@@ -381,6 +523,9 @@ void TextureLandmarks::centreBetween(const cv::Mat& second, int channel, double 
   points_.swap(lifted);
   normals_.swap(normals);
   depth_sigma_.swap(sigmas);
+  lifted_points_ = points_;
+  lifted_sigma_ = depth_sigma_;
+  lifted_at_points_ = true;
 }
 
 }  // namespace structured_light_stabilizer

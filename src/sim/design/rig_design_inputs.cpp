@@ -104,6 +104,16 @@ void readOptions(const Reader& r, const YAML::Node& n, DesignOptions* o)
   o->output_bits = static_cast<int>(bits);
 }
 
+void readBeams(const Reader& r, const YAML::Node& n, BeamDesignOptions* b)
+{
+  r.onlyKeys(n, "beams", {"beam_sigma_mrad", "focus_distance_m", "relief_m", "seeds", "frames"});
+  r.numbers(n, "beam_sigma_mrad", 1e-3, &b->beam_sigma_rad);
+  r.numbers(n, "focus_distance_m", 1.0, &b->focus_distance_m);
+  r.number(n, "relief_m", 1.0, &b->relief_m);
+  r.integer(n, "seeds", &b->seeds);
+  r.integer(n, "frames", &b->frames);
+}
+
 // emitters: a list of {name, + the keys of a rig's emitter}.
 void readEmitters(const Reader& r, const SceneAnalysis& a, const YAML::Node& n, std::vector<NamedEmitter>* out)
 {
@@ -159,13 +169,15 @@ DesignInputs designInputsFromYaml(const std::string& yaml_text, const std::strin
     const YAML::Node root = YAML::Load(yaml_text);
     if (root.IsNull())
       return in;
-    r.onlyKeys(root, "", {"conditions", "target", "options", "emitters"});
+    r.onlyKeys(root, "", {"conditions", "target", "options", "beams", "emitters"});
     if (root["conditions"])
       readConditions(r, root["conditions"], &in.conditions);
     if (root["target"])
       readTarget(r, root["target"], &in.target);
     if (root["options"])
       readOptions(r, root["options"], &in.options);
+    if (root["beams"])
+      readBeams(r, root["beams"], &in.beams);
     if (root["emitters"])
       readEmitters(r, analyseScene(scene), root["emitters"], &in.options.emitters);
   }

@@ -178,6 +178,7 @@ void renderDots(const SimulatorParams& params, const ProjectorCalibration& proje
     for (int c = 0; c < 3; ++c)
       sp.value[c] = static_cast<float>(amplitude);
     sp.albedo = static_cast<int>(albedo->size());
+    sp.beam = b;
     // The splat ends where the dot falls below 0.005 DN, but not before
     // exp(-12.5) of its peak (what the second moments of a faint dot see) nor
     // after exp(-25).

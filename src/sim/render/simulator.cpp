@@ -159,6 +159,27 @@ void exposeRows(const RowInputs& in, SimFrame* frame)
                     });
 }
 
+// SimFrame::light_centroids and footprint_centroids from the dots' splats
+// (a blurred dot's sub-exposures add up).
+void dotCentroids(const std::vector<sim::Splat>& splats, const std::vector<sim::DotAlbedo>& albedo,
+                  const sim::RockSurface& rock, int channel, int width, SimFrame* frame)
+{
+  std::vector<sim::DotMoments> m(frame->visible.size());
+  for (const sim::Splat& sp : splats)
+    if (sp.albedo >= 0 && sp.beam >= 0 && sp.beam < static_cast<int>(m.size()))
+      sim::addDotMoments(sp, albedo[sp.albedo], rock, channel, width, &m[sp.beam]);
+  const cv::Point2d none(detail::kNaN, detail::kNaN);
+  frame->light_centroids.assign(m.size(), none);
+  frame->footprint_centroids.assign(m.size(), none);
+  for (size_t b = 0; b < m.size(); ++b)
+  {
+    if (!frame->visible[b] || !(m[b].w > 0.0) || !(m[b].fw > 0.0))
+      continue;
+    frame->light_centroids[b] = cv::Point2d(m[b].wx / m[b].w, m[b].wy / m[b].w);
+    frame->footprint_centroids[b] = cv::Point2d(m[b].fwx / m[b].fw, m[b].fwy / m[b].fw);
+  }
+}
+
 }  // namespace
 
 // The built scene, immutable after construction and shared by copies of the
@@ -208,6 +229,7 @@ void Simulator::updateLive(const SimulatorParams& params)
   c.sensor.gain_dn_per_electron = params.sensor.gain_dn_per_electron;
   c.noise_seed = params.noise_seed;
   c.keep_linear = params.keep_linear;
+  c.dot_centroid_truth = params.dot_centroid_truth;
   c.projector.power_scale = params.projector.power_scale;
   const std::string why = c.validate();
   if (!why.empty())
@@ -283,6 +305,8 @@ SimFrame Simulator::render(double t, const FrameRequest& request) const
     sim::renderDots(params_, projector_, im.rock, g, &frame, &splats, &dot_albedo);
   if (im.board)
     sim::boardTruth(params_.target.chessboard, sc.camera, g, &frame.target_pose, &frame.target_corners);
+  if (params_.dot_centroid_truth)
+    dotCentroids(splats, dot_albedo, im.rock, im.spectrum.primary, sc.camera.width, &frame);
   if (!request.projector_on)
     splats.resize(clutter_splats);  // the truth stays; the light does not reach the rock
   const sim::SplatRows splat_rows(std::move(splats), std::move(dot_albedo), im.rock, sc.camera.height);

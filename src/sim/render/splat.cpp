@@ -78,6 +78,41 @@ void applySplatRow(const Splat& sp, int v, int width, float* row, const DotAlbed
   }
 }
 
+void addDotMoments(const Splat& sp, const DotAlbedo& albedo, const RockSurface& surface, int channel, int width,
+                   DotMoments* m)
+{
+  for (int v = sp.v0; v <= sp.v1; ++v)
+  {
+    // The row's pixels inside q <= q_max, as applySplatRow() finds them.
+    const double dy = v - sp.cy;
+    const double disc = sp.b * sp.b * dy * dy - sp.a * (sp.c * dy * dy - sp.q_max);
+    if (!(disc >= 0.0))
+      continue;
+    const double root = std::sqrt(disc);
+    const int u0 = static_cast<int>(std::max(0.0, std::ceil(sp.cx + (-sp.b * dy - root) / sp.a)));
+    const int u1 = static_cast<int>(std::min(width - 1.0, std::floor(sp.cx + (-sp.b * dy + root) / sp.a)));
+    for (int u = u0; u <= u1; ++u)
+    {
+      const double dx = u - sp.cx;
+      const double g = sp.value[channel] * std::exp(-0.5 * (sp.a * dx * dx + 2.0 * sp.b * dx * dy + sp.c * dy * dy));
+      float f[3];
+      albedo.factors(surface, dx, dy, f);
+      // The footprint: the same light without the reflectance (its
+      // incidence factor on relief, 1 on a plane or a board).
+      float rho[4], shade = 1.0f;
+      if (!surface.board)
+        albedo.rockFactors(surface, static_cast<float>(dx), static_cast<float>(dy), rho, &shade);
+      const double light = g * f[channel], footprint = g * (albedo.incidence ? shade : 1.0f);
+      m->w += light;
+      m->wx += light * u;
+      m->wy += light * v;
+      m->fw += footprint;
+      m->fwx += footprint * u;
+      m->fwy += footprint * v;
+    }
+  }
+}
+
 Eigen::Matrix<double, 2, 3> projectionJacobian(const CameraModel& cam, const Eigen::Vector3d& X)
 {
   Eigen::Matrix<double, 2, 3> J;

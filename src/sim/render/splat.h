@@ -29,6 +29,7 @@ struct Splat
   bool blend = false;                   // patch: out = (1 - w) out + w value
   bool flat_top = false;                // patch: w = min(1, 2.5 g), a soft-edged disc
   int albedo = -1;                      // dot: index of its DotAlbedo in SplatRows, -1 = none
+  int beam = -1;                        // dot: the projector beam whose light it is
 };
 
 // What makes a projector dot's pixels follow the surface under each of them
@@ -161,6 +162,20 @@ bool setSplatShape(Splat* sp, const Eigen::Matrix2d& S, double q_max, int height
 // an albedo (sp.albedo >= 0) needs `albedo` and `surface`.
 void applySplatRow(const Splat& sp, int v, int width, float* row, const DotAlbedo* albedo = nullptr,
                    const RockSurface* surface = nullptr);
+
+// Sums over the pixels of a dot's splat (with its DotAlbedo) of its
+// noise-free light in buffer channel `channel`: the weight and its first
+// moments in pixel coordinates, for the light as rendered and for the light
+// over the reflectance under each pixel (the beam's footprint as relief and
+// incidence shape it, texture divided out). Ground truth for the tools
+// (SimFrame::light_centroids); rendering does not read it.
+struct DotMoments
+{
+  double w = 0.0, wx = 0.0, wy = 0.0;     // the light
+  double fw = 0.0, fwx = 0.0, fwy = 0.0;  // the footprint
+};
+void addDotMoments(const Splat& sp, const DotAlbedo& albedo, const RockSurface& surface, int channel, int width,
+                   DotMoments* m);
 
 // 2x3 Jacobian of the (distorted) projection at a camera-frame point: maps a
 // covariance on the rock to one in the image.

@@ -30,6 +30,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/sim/design/beam_design.h"
 #include "structured_light_stabilizer/sim/design/radiometry.h"
 #include "structured_light_stabilizer/sim/design/scene_analysis.h"
 
@@ -87,6 +88,7 @@ struct DesignInputs
   DesignConditions conditions;
   DesignTarget target;
   DesignOptions options;
+  BeamDesignOptions beams;  // the beam x focus table (beam_design.h), apart from the rig search
 };
 
 // The study's scene and the default option grid (config/rig_design.yaml

@@ -85,6 +85,16 @@ struct SimFrame
   // Per beam, 1 when the noise-free signal at the dot's pixel (dot and rock,
   // any channel) exceeds the full well: the dot is clipped.
   std::vector<uint8_t> clipped;
+  // Only with SimulatorParams::dot_centroid_truth (NaN for beams without a
+  // dot, empty otherwise): per beam, the centroid (distorted pixels) of the
+  // dot's own noise-free light in the projector's channel (its image
+  // position as rendered: the albedo under it, the relief's incidence across
+  // the footprint, motion blur; what a detector can reach without knowing
+  // the albedo), and of that light divided by the reflectance under each
+  // pixel (the footprint: what a detector that divides the albedo out can
+  // reach). `pixels` is the hit point's projection (what depth needs).
+  std::vector<cv::Point2d> light_centroids;
+  std::vector<cv::Point2d> footprint_centroids;
   // Noise-free radiance in DN before noise, clipping and quantisation, only
   // with keep_linear: CV_32FC3 (B, G, R) for colour and Bayer outputs (the
   // mosaic samples it), CV_32FC1 for monochrome.

@@ -279,6 +279,10 @@ struct SimulatorParams
   // Keep the noise-free linear radiance (CV_32FC3, DN, before noise, clipping
   // and quantisation) in SimFrame::linear; for tests.
   bool keep_linear = false;
+  // Fill SimFrame::light_centroids and footprint_centroids (a sum over each
+  // dot's pixels, about 1 ms a frame); for the evaluation tools. The image
+  // is the same either way.
+  bool dot_centroid_truth = false;
 
   // Empty when usable, otherwise why not.
   std::string validate() const;

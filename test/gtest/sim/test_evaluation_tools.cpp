@@ -1,0 +1,142 @@
+// The evaluation tools run in-process on small cases, so that none of them
+// rots: evaluate_pose_delta (with its experiments' flags), evaluate_daylight
+// (with --param and the scene flags), design_rig (with the beam x focus
+// table). Each run's exit status, its figures against loose bounds (the
+// tools' full figures are the docs', each with its command), and a bad
+// usage refused with status 2 naming the problem. Seeds 11-12: held out.
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include "cli/design_rig_cli.h"
+#include "cli/evaluate_daylight_cli.h"
+#include "cli/evaluate_pose_delta_cli.h"
+
+using namespace structured_light_stabilizer;
+
+namespace
+{
+
+struct ToolRun
+{
+  int status = -1;
+  std::string out, err;
+};
+
+template <typename Main>
+ToolRun run(Main main, const std::vector<std::string>& args)
+{
+  std::ostringstream out, err;
+  ToolRun r;
+  r.status = main(args, out, err);
+  r.out = out.str();
+  r.err = err.str();
+  return r;
+}
+
+// The number after `label` on the first line that has `line_start` (NaN when absent).
+double figure(const std::string& text, const std::string& line_start, const std::string& label)
+{
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);)
+  {
+    if (line.find(line_start) == std::string::npos)
+      continue;
+    const size_t at = line.find(label);
+    if (at != std::string::npos)
+      return std::atof(line.c_str() + at + label.size());
+  }
+  return std::nan("");
+}
+
+}  // namespace
+
+// The rough rock through the chain with a true reference surface over the
+// dots and a denser 12 x 12 grid; every frame valid, well within 1 mm.
+TEST(EvaluationTools, EvaluatePoseDeltaWithItsExperiments)
+{
+  const ToolRun r = run(evaluatePoseDeltaMain, {"rough", "11", "1", "3", "--true-surface", "box", "--grid", "12x12",
+                                                "--param", "pose.texture_max_features=150"});
+  std::cout << r.out;
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("grid 12x12"), std::string::npos);
+  const double valid = figure(r.out, "rough all seeds", "valid ");
+  const double t = figure(r.out, "rough all seeds", "over valid frames t ");
+  std::cout << "[ MEASURE ] evaluate_pose_delta rough 11 1 3 (true surface, 12x12): valid " << valid << " %, " << t
+            << " mm\n";
+  EXPECT_EQ(valid, 100.0);
+  EXPECT_LT(t, 1.0);
+
+  const ToolRun bad = run(evaluatePoseDeltaMain, {"rough", "--param", "enabled=0"});
+  EXPECT_EQ(bad.status, 2);
+  EXPECT_NE(bad.err.find("more than one stage"), std::string::npos) << bad.err;
+  EXPECT_EQ(run(evaluatePoseDeltaMain, {"--grid", "1x9"}).status, 2);
+  EXPECT_EQ(run(evaluatePoseDeltaMain, {"--true-surface", "everywhere"}).status, 2);
+}
+
+// One colour frame at 1.5 m with the detector's albedo normalisation off and
+// vignetting off: every dot found; the centroid against the hit point and
+// against the light's own centroid both printed.
+TEST(EvaluationTools, EvaluateDaylightWithParamsAndSceneFlags)
+{
+  const ToolRun r =
+      run(evaluateDaylightMain, {"--strobe", "0", "--ratio", "8", "--distance", "1.5", "--seeds", "11", "--frames",
+                                 "3", "--param", "normalise_albedo=0", "--vignetting", "0"});
+  std::cout << r.out;
+  ASSERT_EQ(r.status, 0) << r.err;
+  EXPECT_NE(r.out.find("vignetting off"), std::string::npos);
+  const double recall = figure(r.out, "all:", "recall ");
+  const double hit = figure(r.out, "all:", "centroid ");
+  const double light = figure(r.out, "all:", "against the light ");
+  const double depth = figure(r.out, "all:", "mm (");
+  std::cout << "[ MEASURE ] evaluate_daylight one frame 1.5 m seed 11: recall " << recall << ", centroid " << hit
+            << " px against the hit point, " << light << " px against the light, depth " << depth << " % of z\n";
+  EXPECT_GE(recall, 0.99);
+  EXPECT_LT(hit, 0.5);
+  EXPECT_LT(light, 0.5);
+  EXPECT_LT(depth, 0.2);
+
+  const ToolRun bad = run(evaluateDaylightMain, {"--param", "no_such_setting=1"});
+  EXPECT_EQ(bad.status, 2);
+  EXPECT_NE(bad.err.find("no_such_setting"), std::string::npos) << bad.err;
+  EXPECT_EQ(run(evaluateDaylightMain, {"--frames"}).status, 2);
+}
+
+// A one-rig design with two beams at the study's focus: the table, and the
+// narrower beam's relief floor below the wider one's at the far distance.
+TEST(EvaluationTools, DesignRigWithTheBeamTable)
+{
+  const std::string path = std::filesystem::temp_directory_path() / ("sls_design_" + std::to_string(getpid()) + ".yaml");
+  {
+    std::ofstream f(path);
+    f << "options: {beam_sigma_mrad: [1.5], pulsed: [true], exposure_ms: [2], filter_fwhm_nm: [0], strobe: [true]}\n"
+         "beams: {beam_sigma_mrad: [0.5, 2.0], focus_distance_m: [1.0], seeds: 1, frames: 1}\n";
+  }
+  const ToolRun r = run(designRigMain, {path});
+  std::remove(path.c_str());
+  std::cout << r.out;
+  ASSERT_EQ(r.status, 0) << r.err;
+  // The rows of the beam table: " 0.50    1.00 | 1.0 ... | 2.0 fp dot floor along depth |".
+  std::smatch m;
+  std::vector<double> far_floor;
+  const std::regex row(R"(\s*([0-9.]+)\s+1\.00 \|[^|]*\|\s*2\.0\s+[0-9.]+\s+[0-9.]+\s+([0-9.]+))");
+  std::istringstream lines(r.out);
+  for (std::string line; std::getline(lines, line);)
+    if (std::regex_search(line, m, row))
+      far_floor.push_back(std::stod(m[2]));
+  ASSERT_EQ(far_floor.size(), 2u) << r.out;
+  std::cout << "[ MEASURE ] relief floor at 2 m: 0.5 mrad " << far_floor[0] << " px, 2.0 mrad " << far_floor[1]
+            << " px\n";
+  EXPECT_LT(far_floor[0], far_floor[1]);
+
+  EXPECT_EQ(run(designRigMain, {"--beams", "2"}).status, 2);
+}

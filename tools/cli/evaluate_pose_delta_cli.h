@@ -1,0 +1,16 @@
+// The evaluate_pose_delta tool's command line (tools/evaluate_pose_delta.cpp;
+// docs/pose_delta.md), callable in-process: the arguments without the
+// program's name, the report to `out`, the problems to `err`. Returns the
+// exit status: 0 done, 2 bad usage.
+#pragma once
+
+#include <ostream>
+#include <string>
+#include <vector>
+
+namespace structured_light_stabilizer
+{
+
+int evaluatePoseDeltaMain(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+
+}  // namespace structured_light_stabilizer
