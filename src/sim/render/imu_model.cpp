@@ -1,5 +1,6 @@
 #include "structured_light_stabilizer/sim/render/imu_model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -79,7 +80,10 @@ CameraKinematics cameraKinematics(const RigMotionParams& disturbance, const ArmM
 {
   // A = D^-1: the camera's pose in W from the disturbance alone.
   const auto A = [&](double at) { return disturbanceMotion(disturbance, at).inverse(); };
-  const Eigen::Isometry3d A0 = A(t), Am = A(t - kDifferenceStepS), Ap = A(t + kDifferenceStepS);
+  // The disturbance starts at t = 0 (before it, its steps count backwards):
+  // the differences stay on t >= 0.
+  const double before = std::max(0.0, t - kDifferenceStepS), after = before + 2.0 * kDifferenceStepS;
+  const Eigen::Isometry3d A0 = A(t), Am = A(before), Ap = A(after);
   const Eigen::Vector3d w_A = bodyRate(Am.linear(), Ap.linear(), kDifferenceStepS);  // body rate of A
   const Eigen::Vector3d v_A = (Ap.translation() - Am.translation()) / (2.0 * kDifferenceStepS);
   Eigen::Isometry3d C = Eigen::Isometry3d::Identity();

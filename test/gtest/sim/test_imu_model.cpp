@@ -215,3 +215,17 @@ TEST(ImuModel, KinematicsMatchFiniteDifferencesOfThePoses)
   // Without the arm: the disturbance alone, T_W_C = D^-1.
   EXPECT_TRUE(cameraKinematics(m, nullptr, t).pose.isApprox(disturbanceMotion(m, t).inverse(), 1e-12));
 }
+
+TEST(ImuModel, NoSpikeAtTheStart)
+{
+  // The disturbance is defined from t = 0 on (its steps would count
+  // backwards before): the first samples read gravity, not a jump.
+  const RigMotionParams m = roverArmDisturbance();
+  ImuModelParams p = noiseless();
+  p.accel_bias.setZero();
+  ImuModel imu(p);
+  ImuSample s;
+  imu.sample(cameraKinematics(m, nullptr, 0.0), &s);
+  ASSERT_TRUE(imu.sample(cameraKinematics(m, nullptr, 0.0025), &s));
+  EXPECT_NEAR(s.linear_acceleration.norm(), 3.711, 0.1);  // the motion's own, no jump
+}
