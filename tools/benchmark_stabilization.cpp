@@ -16,6 +16,10 @@
 //   latency=0.025    exposure to estimate delivered (s), + jitter=0.06 (uniform)
 //   imu_latency=0.001  IMU sample to command (s)
 //   seeds=5          seeds per scenario (1..seeds; the gtests hold out others)
+//   noise=study|lockstep  the estimate's noise: 0.2 mm and 0.008 deg per axis
+//                    (the study's full-resolution chain), or what PoseDelta
+//                    gave in lockstep on the 512 x 512 ROI at 120 Hz (0.07 mm,
+//                    0.0016 deg per axis plus its 0.3 mrad tx-ry/ty-rx ambiguity)
 //   duration=30      s after the lock per scenario run
 //   curve=1 scenarios=1  what to run
 //   csv=FILE         the |S| table as CSV (frequency_hz, camera_only, with_imu)
@@ -23,6 +27,7 @@
 //                    loop (default: the .def defaults) or of the fused loop
 //                    (default: fusedLoopControllerParams(), config/stabilize_imu.yaml)
 #include <cmath>
+#include <complex>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
@@ -46,6 +51,7 @@ struct Setup
   LoopModelParams loop;
   int seeds = 5;
   bool curve = true, scenarios = true;
+  bool curve_noise = false;  // the curve with the estimate's noise (a larger sine: 1 mm, 0.5 mrad)
   std::string csv;
 };
 
@@ -53,19 +59,46 @@ struct Setup
 double rejection(const Setup& s, bool imu, double f)
 {
   RigMotionParams m;
-  m.vibration_translation_rms_m = 0.00002;
-  m.vibration_rotation_rms_rad = 0.00001;
-  m.vibration_min_hz = m.vibration_max_hz = f;
   LoopModelParams lp = s.loop;
   lp.imu = imu;
-  lp.noise_translation_m = lp.noise_rotation_rad = 0.0;
-  lp.imu_params.gyro_noise_density = lp.imu_params.accel_noise_density = 0.0;
-  lp.imu_params.gyro_bias_random_walk = lp.imu_params.accel_bias_random_walk = 0.0;
+  if (s.curve_noise)
+  {
+    // Above the estimate's noise, below the arm's 1 m/s^2: 0.5 mm / f (Hz)
+    // RMS, as config/disturbance_probe.yaml's tones.
+    m.vibration_translation_rms_m = 0.0005 / std::max(1.0, f);
+    m.vibration_rotation_rms_rad = 0.00025 / std::max(1.0, f);
+    lp.imu_params = ImuModelParams();
+  }
+  else
+  {
+    m.vibration_translation_rms_m = 0.00002;
+    m.vibration_rotation_rms_rad = 0.00001;
+    lp.noise_translation_m = lp.noise_rotation_rad = lp.noise_ambiguity_rad = 0.0;
+    lp.imu_params.gyro_noise_density = lp.imu_params.accel_noise_density = 0.0;
+    lp.imu_params.gyro_bias_random_walk = lp.imu_params.accel_bias_random_walk = 0.0;
+  }
+  m.vibration_min_hz = m.vibration_max_hz = f;
   // Long enough for several periods after the transient.
   const double settle = std::max(2.0, 2.0 / f);
   lp.duration_s = settle + std::max(imu ? 4.0 : 10.0, 5.0 / f);
   const auto samples = runLoop(m, imu ? s.imu_control : s.camera_control, s.arm, lp);
-  return loopRms(samples, true, settle, true).translation_m / loopRms(samples, false, settle, true).translation_m;
+  if (!s.curve_noise)
+    return loopRms(samples, true, settle, true).translation_m / loopRms(samples, false, settle, true).translation_m;
+  // With noise: the DFT at f (the estimate's noise spreads over the band; the
+  // loop's response is at f), translation axes summed.
+  std::complex<double> closed[3], open[3];
+  for (const LoopSample& x : samples)
+    if (x.t >= settle)
+      for (int a = 0; a < 3; ++a)
+      {
+        const std::complex<double> w = std::exp(std::complex<double>(0.0, -2.0 * M_PI * f * x.t));
+        closed[a] += x.closed[a] * w;
+        open[a] += x.open[a] * w;
+      }
+  double pc = 0.0, po = 0.0;
+  for (int a = 0; a < 3; ++a)
+    pc += std::norm(closed[a]), po += std::norm(open[a]);
+  return std::sqrt(pc / po);
 }
 
 struct CurveFigures
@@ -164,6 +197,14 @@ bool setFlag(Setup* s, const std::string& key, const std::string& value)
     return s->imu_control.set(key.substr(4), value);
   if (key == "csv")
     return (s->csv = value, true);
+  if (key == "noise" && (value == "study" || value == "lockstep"))
+  {
+    const bool lockstep = value == "lockstep";
+    s->loop.noise_translation_m = lockstep ? 0.00007 : 0.0002;
+    s->loop.noise_rotation_rad = lockstep ? 0.000028 : 0.00014;
+    s->loop.noise_ambiguity_rad = lockstep ? 0.0003 : 0.0;
+    return true;
+  }
   if (!number)
     return false;
   if (key == "rate")
@@ -180,6 +221,8 @@ bool setFlag(Setup* s, const std::string& key, const std::string& value)
     s->loop.duration_s = v;
   else if (key == "curve")
     s->curve = v != 0.0;
+  else if (key == "curve_noise")
+    s->curve_noise = v != 0.0;
   else if (key == "scenarios")
     s->scenarios = v != 0.0;
   else

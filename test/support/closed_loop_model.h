@@ -36,6 +36,12 @@ struct LoopModelParams
   double latency_jitter_s = 0.0;        // + uniform [0, jitter]
   double noise_translation_m = 0.0002;  // 1-sigma per axis of the estimate
   double noise_rotation_rad = 0.00014;
+  // PoseDelta's own ambiguity on top (1-sigma, rad): a rotation about x or
+  // y paired with the translation that moves the rock's image alike (at
+  // ambiguity_depth_m), errors that correlate at -0.9998 (tx, ry) and
+  // +0.9998 (ty, rx) in a lockstep run (docs/stabilization.md).
+  double noise_ambiguity_rad = 0.0;
+  double ambiguity_depth_m = 1.5;
   uint32_t noise_seed = 1;
   double lock_s = 1.0;       // the reference is locked on the first frame at or after this
   double duration_s = 30.0;  // simulated time after the lock
@@ -206,15 +212,22 @@ private:
                  Eigen::Isometry3d::Identity(), false, lock_estimate_ * lock_truth_.inverse()};
     frame_index_[t] = out_.samples.size();
     out_.samples.push_back(s);
-    // The estimate: the offset from the (last) lock with white noise on the current-frame side.
+    // The estimate: the offset from the (last) lock with white noise on the
+    // current-frame side, and PoseDelta's ambiguity.
     Vector6d n;
     for (int a = 0; a < 6; ++a)
       n[a] = gauss_(rng_) * (a < 3 ? p_.noise_translation_m : p_.noise_rotation_rad);
+    Vector6d v1, v2;  // (tx, ry) and (ty, rx) pairs, per radian
+    v1 << -p_.ambiguity_depth_m, 0, 0, 0, 1, 0;
+    v2 << 0, p_.ambiguity_depth_m, 0, 1, 0, 0;
+    if (p_.noise_ambiguity_rad > 0.0)
+      n += p_.noise_ambiguity_rad * (gauss_(rng_) * v1 + gauss_(rng_) * v2);
     StabilizationEstimate e;
     e.stamp = t;
     e.transform = applyIncrement(n, truth * lock_estimate_.inverse());
     for (int a = 0; a < 6; ++a)
       e.covariance(a, a) = std::pow(a < 3 ? p_.noise_translation_m : p_.noise_rotation_rad, 2);
+    e.covariance += std::pow(p_.noise_ambiguity_rad, 2) * (v1 * v1.transpose() + v2 * v2.transpose());
     e.valid = !(since >= p_.invalid_from_s && since < p_.invalid_until_s);
     e.status = e.valid ? "ok: model" : "fault: model estimate invalid";
     if (relock)
