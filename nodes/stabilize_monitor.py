@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
 """Stabilisation monitor (stabilize.launch, docs/stabilization.md): records the
-simulator's truth of the closed loop and, after ~duration seconds, prints one
-line exactly in this form
+simulator's truth of the closed loop and, after ~duration seconds, prints two
+lines exactly in this form, last
 
   stabilization: open-loop A mm B deg RMS, closed-loop C mm D deg RMS
+  image: residual motion E px RMS at the dots, open loop F px
 
 writes the plot (~plot, PNG), the figures (~stats_file, YAML; ~stats,
 diagnostic_msgs/DiagnosticStatus, latched) and the time series (~series_file,
@@ -18,12 +19,25 @@ camera's true offset from the locked pose with the arm commanded (with
 controller:=false the arm stays still and C, D equal A, B). Both topics start
 at the frame after the PoseDelta's lock; time counts from the first of them.
 
+E, F (~image): the rock at the dots, in pixels of the published image. The
+dots are the true beam hit points of the locked frame
+(sim/ground_truth/points); E compares, for each frame the ImageStabilizer
+warped (stabilizer/image_stabilized/pose: the pose it used), where the
+truth puts each of them (sim/ground_truth/offset) with where the warp's
+pose puts them: what remains of the rock's motion in the stabilised image.
+F is their motion in the raw image of the open loop (the disturbance's
+offset). nan when nothing was warped.
+
 Also measured: the latency from exposure to command (stabilizer/error carries
 the estimate's stamp and is published with the command), the commands and
 holds, and the loop's sensitivity |S(f)|: the residual's spectrum over the
 disturbance's (Welch averages), with the bandwidth where it first reaches
 1/sqrt(2). Where the disturbance has little power the ratio is dominated by
 the estimate's noise, so it is drawn only where the disturbance stands out.
+A periodic disturbance (camera_driver/return_period > 0, e.g.
+config/disturbance_probe.yaml) is measured exactly instead: the DFT of whole
+periods after the first, at the disturbance's own frequencies; then also
+|S| at 1 Hz and the peak.
 """
 import math
 import os
@@ -34,12 +48,69 @@ import rospy
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped
+from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_srvs.srv import Trigger
+from structured_light_stabilizer.evaluation import cloud_xyz, transform_matrix
 from structured_light_stabilizer.msg import PoseDelta
 from structured_light_stabilizer.roslaunch_end import end_launch
 
 SEGMENT = 256  # samples per Welch segment (8.5 s at 30 Hz: 0.12 Hz resolution)
 LOCK_WAIT_S = 15.0  # estimates flow but no truth from a lock this long: lock again
+LOCKED = "reference locked on this frame"  # PoseDelta's status phrase
+
+
+def offset_matrix(v):
+    """4 x 4 of an offset (t, rotation vector) as the truth topics give it."""
+    m = np.eye(4)
+    w = np.asarray(v[3:], float)
+    a = np.linalg.norm(w)
+    if a > 0:
+        k = w / a
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        m[:3, :3] = np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+    m[:3, 3] = v[:3]
+    return m
+
+
+def project(m, points, f):
+    """Pixel offsets from the axis (f x / z, f y / z) of the points moved by m."""
+    q = points @ m[:3, :3].T + m[:3, 3]
+    return np.stack([f[0] * q[:, 0] / q[:, 2], f[1] * q[:, 1] / q[:, 2]], axis=1)
+
+
+def tone_sensitivity(open_rows, closed_rows, rate, period):
+    """|S| at the tones of a periodic disturbance: the DFT over whole periods
+    after the first (its transient), translation axes summed, at the bins
+    where the disturbance has power. Frequencies and |S| (arrays)."""
+    n = int(round(period * rate))
+    o, c = np.asarray(open_rows, float), np.asarray(closed_rows, float)
+    windows = (len(o) // n) - 1 if n > 0 else 0
+    if windows < 1:
+        return np.zeros(0), np.zeros(0)
+    po = pc = 0.0
+    for k in range(1, windows + 1):
+        seg_o, seg_c = o[k * n:(k + 1) * n, :3], c[k * n:(k + 1) * n, :3]
+        po = po + np.sum(np.abs(np.fft.rfft(seg_o - seg_o.mean(axis=0), axis=0)) ** 2, axis=1)
+        pc = pc + np.sum(np.abs(np.fft.rfft(seg_c - seg_c.mean(axis=0), axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(n, 1.0 / rate)
+    tones = (po > 1e-3 * np.max(po[1:])) & (f > 0)
+    return f[tones], np.sqrt(pc[tones] / po[tones])
+
+
+def tone_figures(f, s):
+    """|S| at 1 Hz (interpolated on log f), the bandwidth (first |S| >= 0.71) and the peak."""
+    nan = float("nan")
+    if len(f) < 2:
+        return nan, nan, nan, nan
+    s1 = float(np.interp(0.0, np.log(f), s)) if f[0] <= 1.0 <= f[-1] else nan
+    bandwidth = nan
+    for i in range(1, len(s)):
+        if s[i] >= 1.0 / math.sqrt(2.0):
+            u = (1.0 / math.sqrt(2.0) - s[i - 1]) / (s[i] - s[i - 1]) if s[i] != s[i - 1] else 0.0
+            bandwidth = math.exp(math.log(f[i - 1]) + u * (math.log(f[i]) - math.log(f[i - 1])))
+            break
+    i = int(np.argmax(s))
+    return s1, bandwidth, float(s[i]), float(f[i])
 
 
 def vec6(msg):
@@ -105,7 +176,16 @@ class Monitor:
         self.series_file = rospy.get_param("~series_file", "")
         self.exit = bool(rospy.get_param("~exit", True))
         self.controller = bool(rospy.get_param("~controller", True))
+        self.imu = bool(rospy.get_param("~imu", False))
+        self.image = bool(rospy.get_param("~image", False))
+        # A periodic disturbance is measured at its own frequencies.
+        self.period = float(rospy.get_param("camera_driver/return_period", 0.0))
         self.lock = threading.Lock()
+        self.clouds = {}  # stamp -> true beam points (N, 3), recent frames
+        self.dots = None  # the locked frame's true points (reference camera frame)
+        self.lock_stamp = None
+        self.focal = None  # (fx, fy) of the published image
+        self.warps = {}  # stamp -> 4 x 4 pose the stabilised image was warped with
         self.truth = {}  # stamp -> [offset or None, disturbance or None]
         self.t0 = None
         self.latency = []  # s, exposure to command
@@ -120,6 +200,10 @@ class Monitor:
         rospy.Subscriber("stabilizer/cmd_twist", TwistStamped, self.on_command, queue_size=50)
         rospy.Subscriber("stabilizer/error", TwistStamped, self.on_error, queue_size=50)
         rospy.Subscriber("pose_delta", PoseDelta, self.on_pose, queue_size=50)
+        if self.image:
+            rospy.Subscriber("sim/ground_truth/points", PointCloud2, self.on_points, queue_size=20)
+            rospy.Subscriber("camera/camera_info", CameraInfo, self.on_info, queue_size=2)
+            rospy.Subscriber("stabilizer/image_stabilized/pose", PoseDelta, self.on_warp, queue_size=50)
         self.started = rospy.Time.now()
         self.relocked = False
         rospy.Timer(rospy.Duration(0.5), self.check_end)
@@ -145,6 +229,28 @@ class Monitor:
         with self.lock:
             self.estimates += 1
             self.valid += int(msg.valid)
+            if LOCKED in msg.status:
+                self.lock_stamp = msg.header.stamp.to_sec()
+                if self.lock_stamp in self.clouds:
+                    self.dots = self.clouds[self.lock_stamp]
+
+    def on_points(self, msg):
+        xyz = cloud_xyz(msg)
+        stamp = msg.header.stamp.to_sec()
+        with self.lock:
+            self.clouds[stamp] = xyz[np.all(np.isfinite(xyz), axis=1)]
+            for old in [k for k in self.clouds if k < stamp - 3.0]:
+                del self.clouds[old]
+            if self.lock_stamp == stamp:
+                self.dots = self.clouds[stamp]
+
+    def on_info(self, msg):
+        with self.lock:
+            self.focal = (msg.K[0] / max(1, msg.binning_x), msg.K[4] / max(1, msg.binning_y))
+
+    def on_warp(self, msg):
+        with self.lock:
+            self.warps[msg.header.stamp.to_sec()] = transform_matrix(msg.transform)
 
     def check_end(self, _event):
         with self.lock:
@@ -173,8 +279,27 @@ class Monitor:
         with self.lock:
             rows = [(s, v[0], v[1]) for s, v in sorted(self.truth.items()) if v[0] is not None and v[1] is not None]
         rows = [r for r in rows if r[0] - self.t0 <= self.duration]
+        self.stamps = [r[0] for r in rows]
         t = np.array([r[0] - self.t0 for r in rows])
         return t, np.array([r[1] for r in rows]).reshape(-1, 6), np.array([r[2] for r in rows]).reshape(-1, 6)
+
+    def image_figures(self, closed, open_):
+        """E (stabilised, frames warped) and F (raw, open loop): px RMS at the dots."""
+        nan = float("nan")
+        with self.lock:
+            dots, focal, warps = self.dots, self.focal, dict(self.warps)
+        if dots is None or focal is None or len(dots) == 0:
+            return nan, nan, 0
+        stab, raw = [], []
+        for stamp, c, o in zip(self.stamps, closed, open_):
+            base = project(np.eye(4), dots, focal)
+            raw.append(np.sum((project(offset_matrix(o), dots, focal) - base) ** 2, axis=1))
+            w = warps.get(stamp)
+            if w is not None:
+                stab.append(np.sum((project(offset_matrix(c), dots, focal) - project(w, dots, focal)) ** 2, axis=1))
+        e = math.sqrt(np.mean(np.concatenate(stab))) if stab else nan
+        f = math.sqrt(np.mean(np.concatenate(raw))) if raw else nan
+        return e, f, len(stab)
 
     def figures(self):
         t, closed, open_ = self.series()
@@ -182,8 +307,15 @@ class Monitor:
         a, b = rms(open_)
         c, d = rms(closed)
         f, po, pc, s, bandwidth = sensitivity(open_, closed, rate)
+        tones_f, tones_s = tone_sensitivity(open_, closed, rate, self.period) if self.period > 0 else ([], [])
+        s1, tone_bandwidth, peak, peak_f = tone_figures(np.asarray(tones_f), np.asarray(tones_s))
+        if self.period > 0:
+            bandwidth = tone_bandwidth
+            rospy.loginfo("stabilize_monitor: |S(f)| at the disturbance's tones: %s",
+                          ", ".join("%.2f Hz %.3f" % fs for fs in zip(tones_f, tones_s)))
         if not self.controller:
             s, bandwidth = np.full_like(s, np.nan), float("nan")  # no loop: |S| = 1 by construction
+        image_e, image_f, image_frames = self.image_figures(closed, open_)
         # The largest residual of any frame after the first second (a step's
         # transient, the estimate's noise, the vibration).
         late = closed[t >= 1.0] if len(t) else closed
@@ -200,8 +332,10 @@ class Monitor:
                 "estimates": float(self.estimates),
                 "valid_fraction": self.valid / self.estimates if self.estimates else float("nan"),
                 "closed_max_translation_mm": max_t, "closed_max_rotation_deg": max_r,
-                "bandwidth_hz": bandwidth, "controller": float(self.controller)}
-        return figures, (t, closed, open_, f, po, pc, s)
+                "bandwidth_hz": bandwidth, "controller": float(self.controller), "imu": float(self.imu),
+                "s_1hz": s1, "s_peak": peak, "s_peak_hz": peak_f,
+                "image_residual_px": image_e, "image_open_px": image_f, "image_frames": float(image_frames)}
+        return figures, (t, closed, open_, f, po, pc, s, np.asarray(tones_f), np.asarray(tones_s))
 
     def finish(self):
         figures, data = self.figures()
@@ -229,17 +363,20 @@ class Monitor:
         print("stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS" % (
             figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
             figures["closed_rotation_deg"]), flush=True)
+        print("image: residual motion %.3f px RMS at the dots, open loop %.2f px" % (
+            figures["image_residual_px"], figures["image_open_px"]), flush=True)
         if self.exit:
             end_launch()
             rospy.signal_shutdown("duration reached")
 
 
-def draw(path, figures, t, closed, open_, f, po, pc, s):
+def draw(path, figures, t, closed, open_, f, po, pc, s, tones_f, tones_s):
     from structured_light_stabilizer.plot import Figure
     fig = Figure(1500, 1120, "stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS "
-                 "(latency exposure to command %.0f ms median)" % (
+                 "(%s; latency exposure to command %.0f ms median); image %.3f px at the dots" % (
                      figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
-                     figures["closed_rotation_deg"], figures["latency_median_ms"]))
+                     figures["closed_rotation_deg"], "with IMU" if figures["imu"] else "camera only",
+                     figures["latency_median_ms"], figures["image_residual_px"]))
     names = ("tx", "ty", "tz", "rx", "ry", "rz")
     for a in range(6):
         scale, unit = (1e3, "mm") if a < 3 else (180.0 / math.pi, "deg")
@@ -253,7 +390,11 @@ def draw(path, figures, t, closed, open_, f, po, pc, s):
     spec.plot(f[ok], pc[ok] * 1e6, "closed-loop residual")
     sens = fig.add((750, 750, 750, 340), "measured sensitivity |S| = residual / disturbance", "frequency (Hz)",
                    "|S|", xlog=True, ylog=True)
-    sens.plot(f[ok], s[ok], "|S| measured")
+    label = "|S| measured, %s" % ("with IMU" if figures["imu"] else "camera only")
+    if len(tones_f):
+        sens.plot(tones_f, tones_s, label + " (at the disturbance's tones)")
+    else:
+        sens.plot(f[ok], s[ok], label)
     sens.hline(1.0 / math.sqrt(2.0), "0.71")
     bw = figures["bandwidth_hz"]
     if math.isfinite(bw):

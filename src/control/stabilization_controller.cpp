@@ -88,8 +88,8 @@ std::string StabilizationControllerParams::validate() const
     why << "dead bands must be finite and >= 0; ";
   if (!positive(timeout))
     why << "timeout must be finite and > 0; ";
-  if (!nonNegative(derivative_filter_s) || !nonNegative(arm_delay))
-    why << "derivative_filter_s and arm_delay must be finite and >= 0; ";
+  if (!nonNegative(derivative_filter_s) || !nonNegative(arm_delay) || !nonNegative(arm_lag))
+    why << "derivative_filter_s, arm_delay and arm_lag must be finite and >= 0; ";
   if (!positive(max_sigma_translation) || !positive(max_sigma_rotation_deg))
     why << "max_sigma_* must be > 0; ";
   if (!positive(max_jump_translation) || !positive(max_jump_rotation_deg))
@@ -98,6 +98,30 @@ std::string StabilizationControllerParams::validate() const
   if (!s.empty())
     s.resize(s.size() - 2);
   return s;
+}
+
+StabilizationControllerParams fusedLoopControllerParams()
+{
+  // Tuned on the loop model (benchmark_stabilization, disturbance seeds
+  // 1-5): the arm's 20 ms delay and 10 Hz lag bound what any controller can
+  // do; a PID with a Smith predictor of the arm's model (delay 22 ms: the
+  // arm's, the IMU's sample period and the transport; its lag folded in at
+  // 11 ms) comes within 10 % of that bound (docs/stabilization.md, "Gains").
+  StabilizationControllerParams p;
+  p.kp_translation = p.kp_rotation = 50.0;
+  p.ki_translation = p.ki_rotation = 200.0;
+  p.kd_translation = p.kd_rotation = 1.0;
+  p.derivative_filter_s = 0.003;
+  p.latency_compensation = true;
+  p.arm_delay = 0.022;
+  p.arm_lag = 0.011;
+  // The arm's own limits (sim/arm_model.h): the controller's rate limit
+  // then never lags the arm.
+  p.max_linear_velocity = 0.1;
+  p.max_angular_velocity = 0.5;
+  p.max_linear_acceleration = 1.0;
+  p.max_angular_acceleration = 5.0;
+  return p;
 }
 
 const char* holdReasonName(HoldReason reason)
@@ -288,21 +312,34 @@ StabilizationCommand StabilizationController::tick(double now)
   return last_command_;
 }
 
-// The motion commanded but not yet in the estimate: what the arm did after
-// (stamp - arm_delay), i.e. the commands sent since then, integrated up to
-// now (first order: the error moves by -u dt).
+// The motion commanded but not yet in the estimate (a Smith predictor with
+// the arm's model): each command held over [a, b) moves the arm by u (b - a)
+// in the end; by the estimate's stamp T the arm had executed u (H(T - d - a)
+// - H(T - d - b)) of it, with d = arm_delay and H the integral of the unit
+// step response of the arm's first-order lag (time constant arm_lag):
+// H(x) = x - tau (1 - exp(-x / tau)) for x > 0, else 0. The error still to
+// come is taken off the measured one (first order: the error moves by -u dt).
 Vector6d StabilizationController::predictedError(const Vector6d& measured, double stamp, double now) const
 {
-  const double from = stamp - params_.arm_delay;
-  Vector6d moved = Vector6d::Zero();
+  const double d = params_.arm_delay, tau = params_.arm_lag;
+  const auto H = [tau](double x)
+  {
+    if (x <= 0.0)
+      return 0.0;
+    return tau > 0.0 ? x - tau * (1.0 - std::exp(-x / tau)) : x;
+  };
+  Vector6d pending = Vector6d::Zero();
   for (size_t i = 0; i < sent_.size(); ++i)
   {
-    const double start = std::max(from, sent_[i].time);
-    const double end = i + 1 < sent_.size() ? sent_[i + 1].time : now;
-    if (end > start)
-      moved += sent_[i].twist * (end - start);
+    const double a = sent_[i].time;
+    const double b = i + 1 < sent_.size() ? sent_[i + 1].time : now;
+    if (!(b > a))
+      continue;
+    const double remaining = (b - a) - (H(stamp - d - a) - H(stamp - d - b));
+    if (remaining > 1e-12)
+      pending += sent_[i].twist * remaining;
   }
-  return measured - moved;
+  return measured - pending;
 }
 
 // PI(D) per axis; integrates over dt (0: no integration, no derivative update).

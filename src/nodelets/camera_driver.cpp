@@ -264,6 +264,7 @@ SourceContext CameraDriverNodelet::sourceContext()
   ctx.error = [this](const std::string& m) { NODELET_ERROR("CameraDriver: %s", m.c_str()); };
   ctx.stamp = [this](ros::Time* stamp) { return acquisitionStamp(stamp); };
   ctx.image_subscribers = [this] { return pub_camera_.getNumSubscribers() + pub_ambient_.getNumSubscribers(); };
+  ctx.running = [this] { return running_.load() && ros::ok(); };
   ctx.camera_info_url = camera_info_url_;
   ctx.window = window_;
   if (calibrated_from_url_)
@@ -382,7 +383,9 @@ GrabResult CameraDriverNodelet::tick(double rate)
       return {GrabStatus::kSkip, why};
     }
     source_->published(header);
-    if (source_->rendered())
+    // A source that is not paced (the simulator in lockstep) runs at the
+    // pipeline's pace, not ~rate: nothing to warn about.
+    if (source_->rendered() && source_->paced())
     {
       const ros::WallTime now = ros::WallTime::now();
       if (consecutive_)
@@ -403,8 +406,8 @@ GrabResult CameraDriverNodelet::tick(double rate)
 // source gave; false with *why when the window does not fit it.
 bool CameraDriverNodelet::publishFrame(const std_msgs::Header& header, const Frame& frame, std::string* why)
 {
-  cv::Mat image;
-  if (!applyWindow(frame.image, frame.encoding, window_, &image, why))
+  cv::Mat image = frame.image;
+  if (!frame.windowed && !applyWindow(frame.image, frame.encoding, window_, &image, why))
     return false;
   sensor_msgs::CameraInfoPtr info;
   if (frame.ambient)

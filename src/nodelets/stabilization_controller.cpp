@@ -141,7 +141,12 @@ private:
           // may run on two threads, and the commands must go out in the
           // order of their stamps (the rate limiter's time base).
           std::lock_guard<std::mutex> lock(mutex_);
-          const ros::Time now = ros::Time::now();
+          // Never before the estimate: under /use_sim_time this process may
+          // not have seen the newest /clock yet when the estimate comes (the
+          // simulator's lockstep advances it at every IMU sample), and a
+          // stale "now" would freeze the rate limiter (dt = 0) and shift
+          // the Smith predictor's history.
+          const ros::Time now = std::max(ros::Time::now(), msg->header.stamp);
           frame_ = !camera_frame_param_.empty()    ? camera_frame_param_
                    : !msg->header.frame_id.empty() ? msg->header.frame_id
                                                    : std::string("camera_optical_frame");

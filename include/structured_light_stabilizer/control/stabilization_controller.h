@@ -21,8 +21,8 @@
 // limit on each group (translation, rotation), as vectors so the direction is
 // kept. Optional latency compensation (a Smith predictor for the arm's
 // integrating response): the motion already commanded but not yet visible in
-// the estimate, the integral of the commands from (stamp - arm_delay) to
-// now, is subtracted from the measured error.
+// the estimate, by a model of the arm (a delay arm_delay, then a first-order
+// lag arm_lag of its velocity), is subtracted from the measured error.
 //
 // Hold (command zero at once, integrator frozen, derivative and rate limiter
 // restarted so that the command resumes from zero without a jump): an
@@ -72,6 +72,14 @@ struct StabilizationControllerParams
   // Empty when usable, otherwise why not.
   std::string validate() const;
 };
+
+// The controller's settings for the fused loop (InertialFusion's estimates
+// at IMU rate, config/stabilize_imu.yaml; a gtest keeps the two in step):
+// the gains, the latency compensation and the limits tuned on the loop model
+// (docs/stabilization.md, "Gains"). The defaults of the struct are the
+// camera-only loop's: these gains on 30-120 Hz estimates 25-130 ms late
+// would be unstable.
+StabilizationControllerParams fusedLoopControllerParams();
 
 // One PoseDelta estimate as the controller needs it.
 struct StabilizationEstimate

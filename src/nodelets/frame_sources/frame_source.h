@@ -52,6 +52,9 @@ struct SourceContext
   std::function<bool(ros::Time*)> stamp;
   // Subscribers of camera/image_raw (a lazy source renders only for them).
   std::function<uint32_t()> image_subscribers;
+  // False once the driver is stopping: a source that waits (the
+  // simulator's lockstep mode) gives up.
+  std::function<bool()> running;
   // ~camera_info_url and its intrinsics when they loaded with K != 0 (else null).
   std::string camera_info_url;
   std::shared_ptr<const sensor_msgs::CameraInfo> url_calibration;
@@ -71,6 +74,9 @@ struct Frame
   // camera/image_ambient (same camera_info, its own stamp) instead of
   // camera/image_raw (docs/daylight.md).
   bool ambient = false;
+  // The source applied the sensor window itself (a simulator that renders
+  // only the ROI): `image` is what is published, the driver leaves it as is.
+  bool windowed = false;
 };
 
 enum class GrabStatus

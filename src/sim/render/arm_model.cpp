@@ -165,6 +165,26 @@ RigMotionParams roverArmDisturbance()
   return m;
 }
 
+RigMotionParams earthWindDisturbance()
+{
+  RigMotionParams m = roverArmDisturbance();
+  m.jitter_translation_m = 0.001;
+  m.jitter_rotation_rad = 0.0002;
+  m.vibration_translation_rms_m = 0.0001;
+  m.vibration_rotation_rms_rad = 0.00005;
+  return m;
+}
+
+RigMotionParams vibrationHeavyDisturbance()
+{
+  RigMotionParams m = roverArmDisturbance();
+  m.vibration_translation_rms_m = 0.003;
+  m.vibration_rotation_rms_rad = 0.3 * detail::kPi / 180.0;
+  m.vibration_min_hz = 1.0;
+  m.vibration_max_hz = 8.0;
+  return m;
+}
+
 Eigen::Isometry3d disturbanceMotion(const RigMotionParams& motion, double t)
 {
   return sim::rigMotion(motion, t);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <vector>
 
 #include "structured_light_stabilizer/common/math.h"
 
@@ -67,30 +68,74 @@ double uniform(uint32_t seed, int axis, int k, int draw)
 // log-spaced slice of [min, max] at a random frequency inside it, amplitude
 // from the slice's share of the power (PSD ~ f^slope) and a random phase,
 // scaled to the axis' RMS. min = max: one sine.
-Vector6 vibration(const RigMotionParams& m, double tt, double period)
+struct VibrationTable
 {
-  Vector6 xi = Vector6::Zero();
+  std::vector<double> f[6], amplitude[6], phase[6];  // per axis, per sine (amplitude: of a unit RMS)
+  double rms[6] = {0, 0, 0, 0, 0, 0};
+};
+
+VibrationTable vibrationTable(const RigMotionParams& m, double period)
+{
+  VibrationTable table;
   const bool tone = m.vibration_max_hz <= m.vibration_min_hz;
   const int n = tone ? 1 : kVibrationComponents;
   const double span = tone ? 0.0 : std::log(m.vibration_max_hz / m.vibration_min_hz);
   for (int a = 0; a < 6; ++a)
   {
     const double rms = a < 3 ? m.vibration_translation_rms_m : m.vibration_rotation_rms_rad;
+    table.rms[a] = rms;
     if (rms == 0.0)
       continue;
-    double power = 0.0, sum = 0.0;
-    for (int pass = 0; pass < 2; ++pass)  // pass 0: total power; pass 1: the sines
-      for (int k = 0; k < n; ++k)
-      {
-        const double f = periodic(m.vibration_min_hz * std::exp(span * (k + uniform(m.seed, a, k, 0)) / n), period);
-        // Power of the slice: PSD(f) * width, the width ~ f on a log scale.
-        const double p = tone ? 1.0 : std::pow(f, m.vibration_spectrum_slope) * f;
-        if (pass == 0)
-          power += p;
-        else
-          sum += std::sqrt(2.0 * p / power) * std::sin(2.0 * detail::kPi * (f * tt + uniform(m.seed, a, k, 1)));
-      }
-    xi[a] = rms * sum;
+    double power = 0.0;
+    std::vector<double> f(n), p(n);
+    for (int k = 0; k < n; ++k)
+    {
+      f[k] = periodic(m.vibration_min_hz * std::exp(span * (k + uniform(m.seed, a, k, 0)) / n), period);
+      // Power of the slice: PSD(f) * width, the width ~ f on a log scale.
+      p[k] = tone ? 1.0 : std::pow(f[k], m.vibration_spectrum_slope) * f[k];
+      power += p[k];
+    }
+    for (int k = 0; k < n; ++k)
+    {
+      table.f[a].push_back(f[k]);
+      table.amplitude[a].push_back(std::sqrt(2.0 * p[k] / power));
+      table.phase[a].push_back(uniform(m.seed, a, k, 1));
+    }
+  }
+  return table;
+}
+
+// The table of the last parameters asked for, per thread: the IMU's
+// kinematics evaluate the same disturbance thousands of times a second.
+const VibrationTable& cachedVibrationTable(const RigMotionParams& m, double period)
+{
+  thread_local bool valid = false;
+  thread_local double key[7];
+  thread_local uint32_t key_seed = 0;
+  thread_local VibrationTable table;
+  const double now[7] = {m.vibration_translation_rms_m, m.vibration_rotation_rms_rad, m.vibration_min_hz,
+                         m.vibration_max_hz,            m.vibration_spectrum_slope,   period,
+                         0.0};
+  if (!valid || key_seed != m.seed || !std::equal(now, now + 7, key))
+  {
+    table = vibrationTable(m, period);
+    std::copy(now, now + 7, key);
+    key_seed = m.seed;
+    valid = true;
+  }
+  return table;
+}
+
+Vector6 vibration(const RigMotionParams& m, double tt, double period)
+{
+  const VibrationTable& table = cachedVibrationTable(m, period);
+  Vector6 xi = Vector6::Zero();
+  for (int a = 0; a < 6; ++a)
+  {
+    double sum = 0.0;
+    for (size_t k = 0; k < table.f[a].size(); ++k)
+      sum += table.amplitude[a][k] * std::sin(2.0 * detail::kPi * (table.f[a][k] * tt + table.phase[a][k]));
+    xi[a] = table.rms[a] * sum;
   }
   return xi;
 }

@@ -96,6 +96,16 @@ private:
 // gtest keeps them in step).
 RigMotionParams roverArmDisturbance();
 
+// The same rover on Earth in a 5-10 m/s wind (air 60x denser than on Mars):
+// sway 1 mm and 0.2 mrad, structural vibration 0.1 mm and 0.05 mrad RMS per
+// axis (config/disturbance_earth_wind.yaml).
+RigMotionParams earthWindDisturbance();
+
+// An arm that vibrates: the default with its vibration raised to 3 mm and
+// 0.3 deg RMS per axis over 1-8 Hz, an arm's first structural modes and a
+// rover's mechanisms (config/disturbance_vibration.yaml).
+RigMotionParams vibrationHeavyDisturbance();
+
 // The disturbance alone at time t (what Simulator::motion(t) gives for these
 // params), p_cur = delta p_ref with ref = t 0; for models of the loop
 // without rendering.
