@@ -4,6 +4,7 @@
 // table). Each run's exit status, its figures against loose bounds (the
 // tools' full figures are the docs', each with its command), and a bad
 // usage refused with status 2 naming the problem. Seeds 11-12: held out.
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
