@@ -77,9 +77,13 @@ TEST(EvaluationTools, EvaluatePoseDeltaWithItsExperiments)
   EXPECT_EQ(valid, 100.0);
   EXPECT_LT(t, 1.0);
 
+  // No stage has it; a stage that is none: refused with the reason.
   const ToolRun bad = run(evaluatePoseDeltaMain, {"rough", "--param", "enabled=0"});
   EXPECT_EQ(bad.status, 2);
-  EXPECT_NE(bad.err.find("more than one stage"), std::string::npos) << bad.err;
+  EXPECT_NE(bad.err.find("no stage has a setting 'enabled'"), std::string::npos) << bad.err;
+  const ToolRun no_stage = run(evaluatePoseDeltaMain, {"rough", "--param", "camera.min_points=6"});
+  EXPECT_EQ(no_stage.status, 2);
+  EXPECT_NE(no_stage.err.find("is no stage"), std::string::npos) << no_stage.err;
   EXPECT_EQ(run(evaluatePoseDeltaMain, {"--grid", "1x9"}).status, 2);
   EXPECT_EQ(run(evaluatePoseDeltaMain, {"--true-surface", "everywhere"}).status, 2);
 }
