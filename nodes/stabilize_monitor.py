@@ -7,8 +7,8 @@ lines exactly in this form, last
   image: residual motion E px RMS at the dots, open loop F px
 
 writes the plot (~plot, PNG), the figures (~stats_file, YAML; ~stats,
-diagnostic_msgs/DiagnosticStatus, latched) and the time series (~series_file,
-CSV), then ends the launch (~exit) as Ctrl-C would: SIGINT to its roslaunch,
+diagnostic_msgs/DiagnosticStatus, latched, its message the two lines) and
+the time series (~series_file, CSV), then ends the launch (~exit) as Ctrl-C would: SIGINT to its roslaunch,
 a clean exit with status 0.
 
 A, B: RMS of the translation norm and of the rotation angle of
@@ -356,15 +356,18 @@ class Monitor:
         if self.stats_file:
             with open(self.stats_file, "w") as out:
                 yaml.safe_dump({k: float(v) for k, v in figures.items()}, out)
-        status = DiagnosticStatus(name="stabilize_monitor", level=DiagnosticStatus.OK, message="final figures")
+        lines = ("stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS" % (
+            figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
+            figures["closed_rotation_deg"]),
+                 "image: residual motion %.3f px RMS at the dots, open loop %.2f px" % (
+            figures["image_residual_px"], figures["image_open_px"]))
+        # The message carries the two lines as printed (the rostests check their form).
+        status = DiagnosticStatus(name="stabilize_monitor", level=DiagnosticStatus.OK, message="\n".join(lines))
         status.values = [KeyValue(k, repr(float(v))) for k, v in figures.items()]
         self.stats_pub.publish(status)
         # The summary, last.
-        print("stabilization: open-loop %.2f mm %.3f deg RMS, closed-loop %.2f mm %.3f deg RMS" % (
-            figures["open_translation_mm"], figures["open_rotation_deg"], figures["closed_translation_mm"],
-            figures["closed_rotation_deg"]), flush=True)
-        print("image: residual motion %.3f px RMS at the dots, open loop %.2f px" % (
-            figures["image_residual_px"], figures["image_open_px"]), flush=True)
+        print(lines[0], flush=True)
+        print(lines[1], flush=True)
         if self.exit:
             end_launch()
             rospy.signal_shutdown("duration reached")
