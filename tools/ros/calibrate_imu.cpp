@@ -1,18 +1,20 @@
 // calibrate_imu: the IMU's rotation in the camera frame and its clock offset,
 // from a bag of imu/data (sensor_msgs/Imu) and pose_delta (PoseDelta)
 // recorded while the camera turns about all three axes (docs/stabilization.md,
-// "Calibrating the IMU"). Writes the InertialFusion's mount parameters
-// (imu_rotation [x y z w], imu_time_offset; the lever arm is measured, not
-// estimated: kept from --lever-arm) as a YAML to load into its namespace.
+// docs/tools.md). Prints the InertialFusion's mount parameters as the YAML
+// of config/imu.yaml (imu_frame, imu_rotation [x y z w], imu_lever_arm,
+// imu_time_offset; the lever arm is measured, not estimated: kept from
+// --lever-arm), and writes it to --output if given.
 //
 // Usage: rosrun structured_light_stabilizer calibrate_imu --bag REC.bag
 //          [--imu-topic imu/data] [--pose-topic pose_delta] [--max-offset 0.1]
-//          [--lever-arm X,Y,Z] [--imu-frame imu_link] [--output imu_alignment.yaml]
-// Exit status: 0 written, 1 the data cannot determine the mount (the reason
+//          [--lever-arm X,Y,Z] [--imu-frame imu_link] [--output FILE]
+// Exit status: 0 printed (and written), 1 the data cannot determine the mount (the reason
 // is printed), 2 bad arguments or an unreadable bag.
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -48,7 +50,7 @@ int usage(const char* why)
 
 int main(int argc, char** argv)
 {
-  std::string bag_path, imu_topic = "imu/data", pose_topic = "pose_delta", output = "imu_alignment.yaml";
+  std::string bag_path, imu_topic = "imu/data", pose_topic = "pose_delta", output;
   std::string imu_frame = "imu_link", lever_arm = "0,0,0";
   double max_offset = 0.1;
   for (int i = 1; i < argc; ++i)
@@ -106,27 +108,31 @@ int main(int argc, char** argv)
     return 2;
   }
   const ImuCameraAlignment a = estimateImuCameraAlignment(imu, camera, max_offset);
-  std::printf("calibrate_imu: %zu IMU samples, %zu camera estimates; %d intervals matched, rate residual %.4f "
+  std::fprintf(stderr, "calibrate_imu: %zu IMU samples, %zu camera estimates; %d intervals matched, rate residual %.4f "
               "rad/s, correlation %.3f, weakest excitation %.3f rad/s, gyro bias [%.5f %.5f %.5f] rad/s\n",
               imu.size(), camera.size(), a.pairs, a.rms_residual, a.correlation, a.weakest_excitation,
               a.gyro_bias.x(), a.gyro_bias.y(), a.gyro_bias.z());
   if (!a.problem.empty())
   {
-    std::fprintf(stderr, "calibrate_imu: not written: %s\n", a.problem.c_str());
+    std::fprintf(stderr, "calibrate_imu: no mount estimated: %s\n", a.problem.c_str());
     return 1;
   }
-  std::ofstream out(output);
   const Eigen::Quaterniond& q = a.rotation_camera_imu;
-  out.precision(9);
-  out << "# calibrate_imu from " << bag_path << ": " << a.pairs << " intervals, rate residual " << a.rms_residual
-      << " rad/s\nimu_frame: " << imu_frame << "\nimu_rotation: [" << q.x() << ", " << q.y() << ", " << q.z() << ", "
-      << q.w() << "]\nimu_lever_arm: [" << lever_arm << "]\nimu_time_offset: " << a.time_offset_s << "\n";
-  if (!out)
+  std::ostringstream yaml;
+  yaml.precision(9);
+  yaml << "# calibrate_imu from " << bag_path << ": " << a.pairs << " intervals, rate residual " << a.rms_residual
+       << " rad/s\nimu_frame: " << imu_frame << "\nimu_rotation: [" << q.x() << ", " << q.y() << ", " << q.z()
+       << ", " << q.w() << "]\nimu_lever_arm: [" << lever_arm << "]\nimu_time_offset: " << a.time_offset_s << "\n";
+  std::fputs(yaml.str().c_str(), stdout);
+  if (!output.empty())
   {
-    std::fprintf(stderr, "calibrate_imu: cannot write %s\n", output.c_str());
-    return 2;
+    std::ofstream out(output);
+    out << yaml.str();
+    if (!out)
+    {
+      std::fprintf(stderr, "calibrate_imu: cannot write %s\n", output.c_str());
+      return 2;
+    }
   }
-  std::printf("calibrate_imu: wrote %s (rotation [%.6f %.6f %.6f %.6f], time offset %.2f ms)\n", output.c_str(),
-              q.x(), q.y(), q.z(), q.w(), a.time_offset_s * 1e3);
   return 0;
 }

@@ -1,6 +1,6 @@
 // The IMU's rotation in the camera frame and the offset of its clock,
-// estimated from a recording, ROS-free (docs/stabilization.md, "Calibrating
-// the IMU"; the calibrate_imu tool reads a bag into it).
+// estimated from a recording, ROS-free (docs/tools.md, "calibrate_imu"; the
+// calibrate_imu tool reads a bag into it).
 //
 // Contract. Inputs: the gyro's samples (ImuMeasurement: the IMU's stamps and
 // rates, rad/s, in its own frame) and the camera's orientations over the
