@@ -178,6 +178,8 @@ ImuCameraAlignment estimateImuCameraAlignment(const std::vector<ImuMeasurement>&
   Eigen::Matrix3d R;
   solveRotation(p, &R, &out.gyro_bias);
   out.rotation_camera_imu = Eigen::Quaterniond(R).normalized();
+  if (out.rotation_camera_imu.w() < 0.0)  // one sign for the YAML: w >= 0
+    out.rotation_camera_imu.coeffs() *= -1.0;
   double sq = 0.0;
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (size_t i = 0; i < p.camera.size(); ++i)
