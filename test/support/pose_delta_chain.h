@@ -367,6 +367,14 @@ struct ChainTally
   }
 };
 
+// The instant a seed's run locks (not at rest: the rig is moving), the same
+// in test_pose_delta_chain and evaluate_pose_delta so that the tool prints
+// the test's runs.
+inline double chainLockTime(uint32_t seed)
+{
+  return 0.37 * (static_cast<double>(seed) - 1.0);
+}
+
 // Locks at `t_lock` and runs `frames` frames dt apart through the chain.
 // `log` (optional) gets one line per invalid frame.
 inline ChainTally runChain(const ChainScene& scene, const StageSettings& settings, double t_lock, int frames,

@@ -142,8 +142,9 @@ int evaluatePoseDeltaMain(const std::vector<std::string>& args, std::ostream& ou
       settings.detector.projector_rows = scene.sim.projector.rows;
       settings.detector.projector_cols = scene.sim.projector.cols;
       std::string log;
-      // Lock at a seed-dependent instant (not at rest), as the rostest does.
-      const ChainTally one = sls_test::runChain(scene, settings, 0.37 * (s - 1), q.frames, q.dt, &log);
+      // Lock at a seed-dependent instant (not at rest), as test_pose_delta_chain does.
+      const ChainTally one =
+          sls_test::runChain(scene, settings, sls_test::chainLockTime(static_cast<uint32_t>(s)), q.frames, q.dt, &log);
       print(out, "  " + name + " seed " + std::to_string(s), one);
       out << log;
       all.add(one);
