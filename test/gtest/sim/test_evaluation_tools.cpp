@@ -77,9 +77,10 @@ TEST(EvaluationTools, EvaluatePoseDeltaWithItsExperiments)
   EXPECT_EQ(valid, 100.0);
   EXPECT_LT(t, 1.0);
 
-  const ToolRun bad = run(evaluatePoseDeltaMain, {"rough", "--param", "enabled=0"});
+  // A setting of another stage than the one named.
+  const ToolRun bad = run(evaluatePoseDeltaMain, {"rough", "--param", "pose.normalise_albedo=0"});
   EXPECT_EQ(bad.status, 2);
-  EXPECT_NE(bad.err.find("more than one stage"), std::string::npos) << bad.err;
+  EXPECT_NE(bad.err.find("no pose has a setting 'normalise_albedo'"), std::string::npos) << bad.err;
   EXPECT_EQ(run(evaluatePoseDeltaMain, {"--grid", "1x9"}).status, 2);
   EXPECT_EQ(run(evaluatePoseDeltaMain, {"--true-surface", "everywhere"}).status, 2);
 }
