@@ -92,7 +92,13 @@ std::string parse(const std::vector<std::string>& args, Request* q)
         return "unknown option or bad value: " + a + " " + v;
     }
     else if (a.rfind("dt=", 0) == 0)
-      q->dt = std::atof(a.c_str() + 3);
+    {
+      // "dt=1/30" as well: the strobed test's frame time exactly (the
+      // renders' noise follows the time, so 0.0333 gives other frames).
+      const size_t slash = a.find('/');
+      q->dt = slash == std::string::npos ? std::atof(a.c_str() + 3)
+                                         : std::atof(a.substr(3, slash - 3).c_str()) / std::atof(a.c_str() + slash + 1);
+    }
     else if (a.find('=') != std::string::npos)
     {
       const std::string bad = q->settings.set(a);

@@ -11,7 +11,7 @@
 // Seeds: the estimator was developed and tuned on rock/noise seeds 1-4
 // (tools/evaluate_pose_delta); this test runs seeds 11 and 12 only, never
 // used for tuning; `evaluate_pose_delta <scene> 11 2 20` prints the same
-// runs (dt=0.033333 for "strobed"). Bounds per scene on each seed (RMS over
+// runs (dt=1/30 for "strobed"). Bounds per scene on each seed (RMS over
 // its valid frames, its share of valid frames), and per frame (every valid
 // frame).
 #include <cmath>
