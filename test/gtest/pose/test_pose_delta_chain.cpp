@@ -150,11 +150,12 @@ TEST(PoseDeltaChain, StudysWorstSnr)
     EXPECT_LE(std::sqrt(t.axis2[a] / t.frames), 1.5 * std::sqrt(t.sigma2[a] / t.frames)) << "axis " << a;
 }
 
-// The experiment that isolates the cause: the same frames with the
+// The experiment that isolates the design's part: the same frames with the
 // reference surface from the simulator's rock (every texture feature at its
 // true depth) meet the bound on each seed (0.30 / 0.37 mm,
-// 0.011 / 0.014 deg on seeds 11 / 12): what keeps the design above it is the
-// interpolated reference surface, not the image noise.
+// 0.011 / 0.014 deg on seeds 11 / 12), the image noise unchanged: the
+// interpolated reference surface is what keeps the design above it (the
+// noise, removed alone, takes as much: docs/pose_delta.md#accuracy).
 TEST(PoseDeltaChain, StudysWorstSnrWithTheTrueReferenceSurface)
 {
   expectWithin(runScene("worst_snr", 0.1, ChainScene::TrueSurface::kImage), kAcceptance);
