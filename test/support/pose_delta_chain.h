@@ -145,7 +145,7 @@ struct ChainFrame
   int spots = 0;                                            // detected (before dropping)
   int points = 0;                                           // triangulated beams
   int wrong_beams = 0;                                      // points more than 5 mm from their beam's true hit point
-  TruthErrors truths;      // the spots' centroids (with SimulatorParams::dot_centroid_truth)
+  TruthErrors truths;       // the spots' centroids (with SimulatorParams::dot_centroid_truth)
   double depth_rel2 = 0.0;  // sum over the points of (depth error / depth)^2
 };
 

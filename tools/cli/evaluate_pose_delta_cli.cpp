@@ -32,8 +32,8 @@ void print(std::ostream& out, const std::string& what, const ChainTally& s)
   out << "; per frame: " << std::setprecision(0) << s.features / n << " features, sigma " << std::setprecision(3)
       << s.sigma_texture_px / n << " px, geometry " << s.sigma_geometry_mm / n << " mm; centroid "
       << std::setprecision(4) << s.truths.rms(s.truths.hit2) << " px (along the epipolar line "
-      << s.truths.rms(s.truths.along2) << ", against the light " << s.truths.rms(s.truths.light2)
-      << ", light from hit " << s.truths.rms(s.truths.light_hit2) << "), depth " << s.depthPercent() << " % of z\n";
+      << s.truths.rms(s.truths.along2) << ", against the light " << s.truths.rms(s.truths.light2) << ", light from hit "
+      << s.truths.rms(s.truths.light_hit2) << "), depth " << s.depthPercent() << " % of z\n";
 }
 
 std::vector<std::string> split(const std::string& list)

@@ -64,10 +64,10 @@ SceneRun runScene(const std::string& name, double dt = 0.1,
   }
   const ChainTally& all = run.all;
   std::cout << "[ MEASURE ] " << name << (true_surface == ChainScene::TrueSurface::kNone ? "" : " (true surface)")
-            << " (seeds 11, 12, " << all.frames << " frames): translation RMS "
-            << all.rmsTmm() << " mm, rotation RMS " << all.rmsRdeg() << " deg over the valid frames, worst frame "
-            << all.worst_t_mm << " mm / " << all.worst_r_deg << " deg, valid " << 100.0 * all.validFraction()
-            << " %, wrong beams " << all.wrong_beams << " of " << all.points << "\n";
+            << " (seeds 11, 12, " << all.frames << " frames): translation RMS " << all.rmsTmm() << " mm, rotation RMS "
+            << all.rmsRdeg() << " deg over the valid frames, worst frame " << all.worst_t_mm << " mm / "
+            << all.worst_r_deg << " deg, valid " << 100.0 * all.validFraction() << " %, wrong beams " << all.wrong_beams
+            << " of " << all.points << "\n";
   return run;
 }
 
