@@ -145,7 +145,7 @@ struct ChainFrame
   int spots = 0;                                            // detected (before dropping)
   int points = 0;                                           // triangulated beams
   int wrong_beams = 0;                                      // points more than 5 mm from their beam's true hit point
-  TruthErrors truths;      // the spots' centroids (with SimulatorParams::dot_centroid_truth)
+  TruthErrors truths;       // the spots' centroids (with SimulatorParams::dot_centroid_truth)
   double depth_rel2 = 0.0;  // sum over the points of (depth error / depth)^2
 };
 
@@ -366,6 +366,14 @@ struct ChainTally
     return points > wrong_beams ? 100.0 * std::sqrt(depth_rel2 / (points - wrong_beams)) : NAN;
   }
 };
+
+// The instant a seed's run locks (not at rest: the rig is moving), the same
+// in test_pose_delta_chain and evaluate_pose_delta so that the tool prints
+// the test's runs.
+inline double chainLockTime(uint32_t seed)
+{
+  return 0.37 * (static_cast<double>(seed) - 1.0);
+}
 
 // Locks at `t_lock` and runs `frames` frames dt apart through the chain.
 // `log` (optional) gets one line per invalid frame.

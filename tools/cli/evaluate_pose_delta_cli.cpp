@@ -32,8 +32,8 @@ void print(std::ostream& out, const std::string& what, const ChainTally& s)
   out << "; per frame: " << std::setprecision(0) << s.features / n << " features, sigma " << std::setprecision(3)
       << s.sigma_texture_px / n << " px, geometry " << s.sigma_geometry_mm / n << " mm; centroid "
       << std::setprecision(4) << s.truths.rms(s.truths.hit2) << " px (along the epipolar line "
-      << s.truths.rms(s.truths.along2) << ", against the light " << s.truths.rms(s.truths.light2)
-      << ", light from hit " << s.truths.rms(s.truths.light_hit2) << "), depth " << s.depthPercent() << " % of z\n";
+      << s.truths.rms(s.truths.along2) << ", against the light " << s.truths.rms(s.truths.light2) << ", light from hit "
+      << s.truths.rms(s.truths.light_hit2) << "), depth " << s.depthPercent() << " % of z\n";
 }
 
 std::vector<std::string> split(const std::string& list)
@@ -92,7 +92,13 @@ std::string parse(const std::vector<std::string>& args, Request* q)
         return "unknown option or bad value: " + a + " " + v;
     }
     else if (a.rfind("dt=", 0) == 0)
-      q->dt = std::atof(a.c_str() + 3);
+    {
+      // "dt=1/30" as well: the strobed test's frame time exactly (the
+      // renders' noise follows the time, so 0.0333 gives other frames).
+      const size_t slash = a.find('/');
+      q->dt = slash == std::string::npos ? std::atof(a.c_str() + 3)
+                                         : std::atof(a.substr(3, slash - 3).c_str()) / std::atof(a.c_str() + slash + 1);
+    }
     else if (a.find('=') != std::string::npos)
     {
       const std::string bad = q->settings.set(a);
@@ -142,8 +148,9 @@ int evaluatePoseDeltaMain(const std::vector<std::string>& args, std::ostream& ou
       settings.detector.projector_rows = scene.sim.projector.rows;
       settings.detector.projector_cols = scene.sim.projector.cols;
       std::string log;
-      // Lock at a seed-dependent instant (not at rest), as the rostest does.
-      const ChainTally one = sls_test::runChain(scene, settings, 0.37 * (s - 1), q.frames, q.dt, &log);
+      // Lock at a seed-dependent instant (not at rest), as test_pose_delta_chain does.
+      const ChainTally one =
+          sls_test::runChain(scene, settings, sls_test::chainLockTime(static_cast<uint32_t>(s)), q.frames, q.dt, &log);
       print(out, "  " + name + " seed " + std::to_string(s), one);
       out << log;
       all.add(one);

@@ -10,11 +10,14 @@
 //
 // Seeds: the estimator was developed and tuned on rock/noise seeds 1-4
 // (tools/evaluate_pose_delta); this test runs seeds 11 and 12 only, never
-// used for tuning. Bounds per scene, pooled over the frames (RMS over the
-// valid ones) and per frame (every valid frame).
+// used for tuning; `evaluate_pose_delta <scene> 11 2 20` prints the same
+// runs (dt=1/30 for "strobed"). Bounds per scene on each seed (RMS over
+// its valid frames, its share of valid frames), and per frame (every valid
+// frame).
 #include <cmath>
 #include <iostream>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -29,39 +32,60 @@ constexpr int kFrames = 20;
 
 struct Bounds
 {
-  double rms_t_mm, rms_r_deg;      // pooled RMS over the valid frames
+  double rms_t_mm, rms_r_deg;      // RMS over the valid frames, of each seed
   double frame_t_mm, frame_r_deg;  // every valid frame
-  double min_valid;                // fraction of frames
+  double min_valid;                // fraction of frames, of each seed
 };
 
-ChainTally runScene(const std::string& name, double dt = 0.1)
+struct SceneRun
 {
+  std::vector<ChainTally> seeds;
   ChainTally all;
+};
+
+// `true_surface`: the reference surface from the simulator's rock
+// (evaluate_pose_delta --true-surface image), an experiment.
+SceneRun runScene(const std::string& name, double dt = 0.1,
+                  ChainScene::TrueSurface true_surface = ChainScene::TrueSurface::kNone)
+{
+  SceneRun run;
   for (uint32_t seed : kHeldOutSeeds)
   {
+    ChainScene scene = chainScene(name, seed);
+    scene.true_surface = true_surface;
     std::string log;
-    const ChainTally one = runChain(chainScene(name, seed), PoseDeltaParams(), 0.37 * seed, kFrames, dt, &log);
-    std::cout << log;
-    all.add(one);
+    const ChainTally one = runChain(scene, PoseDeltaParams(), chainLockTime(seed), kFrames, dt, &log);
+    const std::string label = name + (true_surface == ChainScene::TrueSurface::kNone ? "" : " (true surface)");
+    std::cout << log << "[ MEASURE ] " << label << " seed " << seed << ": translation RMS " << one.rmsTmm()
+              << " mm, rotation RMS " << one.rmsRdeg() << " deg over the valid frames, worst frame " << one.worst_t_mm
+              << " mm / " << one.worst_r_deg << " deg, valid " << 100.0 * one.validFraction() << " %\n";
+    run.seeds.push_back(one);
+    run.all.add(one);
   }
-  std::cout << "[ MEASURE ] " << name << " (seeds 11, 12, " << all.frames << " frames): translation RMS "
-            << all.rmsTmm() << " mm, rotation RMS " << all.rmsRdeg() << " deg over the valid frames, worst frame "
-            << all.worst_t_mm << " mm / " << all.worst_r_deg << " deg, valid " << 100.0 * all.validFraction()
-            << " %, wrong beams " << all.wrong_beams << " of " << all.points << "\n";
-  return all;
+  const ChainTally& all = run.all;
+  std::cout << "[ MEASURE ] " << name << (true_surface == ChainScene::TrueSurface::kNone ? "" : " (true surface)")
+            << " (seeds 11, 12, " << all.frames << " frames): translation RMS " << all.rmsTmm() << " mm, rotation RMS "
+            << all.rmsRdeg() << " deg over the valid frames, worst frame " << all.worst_t_mm << " mm / "
+            << all.worst_r_deg << " deg, valid " << 100.0 * all.validFraction() << " %, wrong beams " << all.wrong_beams
+            << " of " << all.points << "\n";
+  return run;
 }
 
-void expectWithin(const ChainTally& t, const Bounds& b)
+void expectWithin(const SceneRun& run, const Bounds& b)
 {
-  EXPECT_GE(t.validFraction(), b.min_valid);
-  EXPECT_LE(t.rmsTmm(), b.rms_t_mm);
-  EXPECT_LE(t.rmsRdeg(), b.rms_r_deg);
-  EXPECT_LE(t.worst_t_mm, b.frame_t_mm);
-  EXPECT_LE(t.worst_r_deg, b.frame_r_deg);
+  for (size_t k = 0; k < run.seeds.size(); ++k)
+  {
+    const ChainTally& t = run.seeds[k];
+    EXPECT_GE(t.validFraction(), b.min_valid) << "seed " << kHeldOutSeeds[k];
+    EXPECT_LE(t.rmsTmm(), b.rms_t_mm) << "seed " << kHeldOutSeeds[k];
+    EXPECT_LE(t.rmsRdeg(), b.rms_r_deg) << "seed " << kHeldOutSeeds[k];
+    EXPECT_LE(t.worst_t_mm, b.frame_t_mm) << "seed " << kHeldOutSeeds[k];
+    EXPECT_LE(t.worst_r_deg, b.frame_r_deg) << "seed " << kHeldOutSeeds[k];
+  }
 }
 
-// The acceptance: 0.5 mm and 0.02 deg RMS, 95 % valid; no valid
-// frame beyond three times that.
+// The acceptance: 0.5 mm and 0.02 deg RMS, 95 % valid, on every
+// seed; no valid frame beyond three times that.
 const Bounds kAcceptance{0.5, 0.02, 1.5, 0.06, 0.95};
 }  // namespace
 
@@ -94,11 +118,11 @@ TEST(PoseDeltaChain, MonochromeImage)
 // from the same frames as bgr8.
 TEST(PoseDeltaChain, TwelveBitCameraReadAtFullDepth)
 {
-  const ChainTally full = runScene("bgr16");
-  const ChainTally rounded = runScene("bgr16_as_bgr8");
+  const SceneRun full = runScene("bgr16");
+  const SceneRun rounded = runScene("bgr16_as_bgr8");
   expectWithin(full, kAcceptance);
-  EXPECT_LE(full.rmsTmm(), 1.02 * rounded.rmsTmm());
-  EXPECT_LE(full.rmsRdeg(), 1.02 * rounded.rmsRdeg());
+  EXPECT_LE(full.all.rmsTmm(), 1.02 * rounded.all.rmsTmm());
+  EXPECT_LE(full.all.rmsRdeg(), 1.02 * rounded.all.rmsRdeg());
 }
 
 TEST(PoseDeltaChain, StrobedAmbientFramesAt30Hz)
@@ -109,21 +133,37 @@ TEST(PoseDeltaChain, StrobedAmbientFramesAt30Hz)
 // Not within the 0.5 mm / 0.02 deg (docs/pose_delta.md#accuracy):
 // with 5-6 % albedo the texture is the relief's shading at 2 DN against
 // 1.1 DN of noise, darkened to half in the corners by vignetting, and the
-// error lies in the tilt / in-plane translation pair that 100 dots 5 cm
-// apart pin only to about 0.02 deg. The bound is what the design reaches
-// (0.6-0.73 mm, 0.024-0.029 deg on seeds 1-2 and 11-12) with a margin; the
+// texture features' depths come from the surface interpolated between dots
+// 5 cm apart. Bounded per seed at what the design reaches on seeds 11 and
+// 12 (0.65 / 0.68 mm, 0.025 / 0.029 deg; worst frames 1.15 / 1.20 mm,
+// 0.047 / 0.046 deg) with about 10 % margin. Seeds 11-20 spread over
+// 0.53-0.94 mm (docs): a bound on other seeds would have to be wider. The
 // reported covariance covers the error (checked per axis below).
+const Bounds kWorstSnr{0.75, 0.032, 1.35, 0.055, 0.95};
+
 TEST(PoseDeltaChain, StudysWorstSnr)
 {
-  const ChainTally t = runScene("worst_snr");
-  expectWithin(t, Bounds{0.9, 0.035, 2.0, 0.08, 0.95});
+  const SceneRun run = runScene("worst_snr");
+  expectWithin(run, kWorstSnr);
+  const ChainTally& t = run.all;
   for (int a = 0; a < 6; ++a)
     EXPECT_LE(std::sqrt(t.axis2[a] / t.frames), 1.5 * std::sqrt(t.sigma2[a] / t.frames)) << "axis " << a;
 }
 
+// The experiment that isolates the design's part: the same frames with the
+// reference surface from the simulator's rock (every texture feature at its
+// true depth) meet the bound on each seed (0.30 / 0.37 mm,
+// 0.011 / 0.014 deg on seeds 11 / 12), the image noise unchanged: the
+// interpolated reference surface is what keeps the design above it (the
+// noise, removed alone, takes as much: docs/pose_delta.md#accuracy).
+TEST(PoseDeltaChain, StudysWorstSnrWithTheTrueReferenceSurface)
+{
+  expectWithin(runScene("worst_snr", 0.1, ChainScene::TrueSurface::kImage), kAcceptance);
+}
+
 TEST(PoseDeltaChain, TexturelessFlatBoardIsNeverValid)
 {
-  const ChainTally t = runScene("textureless");
+  const ChainTally t = runScene("textureless").all;
   EXPECT_EQ(t.valid, 0);
   EXPECT_EQ(t.in_plane_unobservable, t.frames);  // tx, ty and rz named in every frame
 }

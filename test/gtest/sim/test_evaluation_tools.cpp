@@ -84,6 +84,10 @@ TEST(EvaluationTools, EvaluatePoseDeltaWithItsExperiments)
   const ToolRun no_stage = run(evaluatePoseDeltaMain, {"rough", "--param", "camera.min_points=6"});
   EXPECT_EQ(no_stage.status, 2);
   EXPECT_NE(no_stage.err.find("is no stage"), std::string::npos) << no_stage.err;
+  // A setting of another stage than the one named.
+  const ToolRun wrong_stage = run(evaluatePoseDeltaMain, {"rough", "--param", "pose.normalise_albedo=0"});
+  EXPECT_EQ(wrong_stage.status, 2);
+  EXPECT_NE(wrong_stage.err.find("no pose has a setting 'normalise_albedo'"), std::string::npos) << wrong_stage.err;
   EXPECT_EQ(run(evaluatePoseDeltaMain, {"--grid", "1x9"}).status, 2);
   EXPECT_EQ(run(evaluatePoseDeltaMain, {"--true-surface", "everywhere"}).status, 2);
 }
@@ -93,9 +97,8 @@ TEST(EvaluationTools, EvaluatePoseDeltaWithItsExperiments)
 // against the light's own centroid both printed.
 TEST(EvaluationTools, EvaluateDaylightWithParamsAndSceneFlags)
 {
-  const ToolRun r =
-      run(evaluateDaylightMain, {"--strobe", "0", "--ratio", "8", "--distance", "1.5", "--seeds", "11", "--frames",
-                                 "3", "--param", "normalise_albedo=0", "--vignetting", "0"});
+  const ToolRun r = run(evaluateDaylightMain, {"--strobe", "0", "--ratio", "8", "--distance", "1.5", "--seeds", "11",
+                                               "--frames", "3", "--param", "normalise_albedo=0", "--vignetting", "0"});
   std::cout << r.out;
   ASSERT_EQ(r.status, 0) << r.err;
   EXPECT_NE(r.out.find("vignetting off"), std::string::npos);
@@ -116,11 +119,45 @@ TEST(EvaluationTools, EvaluateDaylightWithParamsAndSceneFlags)
   EXPECT_EQ(run(evaluateDaylightMain, {"--frames"}).status, 2);
 }
 
+// The experiment that isolates the smooth rock's centroid error
+// (docs/daylight.md, "What holds the centroid above its bound"): the
+// recommended rig at 1.5 m on a uniform rock, held-out seed 11, 4 dot
+// frames. The albedo normalisation (dividing by the ambient) costs about
+// 0.028 px in quadrature over the same frames without it (0.032 against
+// 0.015 px measured), and nothing on a flat rock (0.010 px): it is the
+// sun's shading of the relief that the ambient carries. Bounds: without it
+// within the 0.03 px goal; with it at least 1.5 x that; flat within 0.02.
+TEST(EvaluationTools, EvaluateDaylightIsolatesTheNormalisationOnASmoothRock)
+{
+  const std::vector<std::string> base{"--rig",      std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_daylight.yaml",
+                                      "--distance", "1.5",
+                                      "--seeds",    "11",
+                                      "--frames",   "4",
+                                      "--albedo",   "0.2"};
+  auto centroid = [&](const std::vector<std::string>& extra)
+  {
+    std::vector<std::string> args = base;
+    args.insert(args.end(), extra.begin(), extra.end());
+    const ToolRun r = run(evaluateDaylightMain, args);
+    EXPECT_EQ(r.status, 0) << r.err;
+    return figure(r.out, "all:", "centroid ");
+  };
+  const double on = centroid({});
+  const double off = centroid({"--param", "normalise_albedo=0"});
+  const double flat = centroid({"--relief", "0"});
+  std::cout << "[ MEASURE ] evaluate_daylight smooth rock 1.5 m seed 11: centroid against the hit point " << on
+            << " px normalised, " << off << " px without, " << flat << " px normalised on a flat rock\n";
+  EXPECT_LE(off, 0.03);
+  EXPECT_GE(on, 1.5 * off);
+  EXPECT_LE(flat, 0.02);
+}
+
 // A one-rig design with two beams at the study's focus: the table, and the
 // narrower beam's relief floor below the wider one's at the far distance.
 TEST(EvaluationTools, DesignRigWithTheBeamTable)
 {
-  const std::string path = std::filesystem::temp_directory_path() / ("sls_design_" + std::to_string(getpid()) + ".yaml");
+  const std::string path =
+      std::filesystem::temp_directory_path() / ("sls_design_" + std::to_string(getpid()) + ".yaml");
   {
     std::ofstream f(path);
     f << "options: {beam_sigma_mrad: [1.5], pulsed: [true], exposure_ms: [2], filter_fwhm_nm: [0], strobe: [true]}\n"
