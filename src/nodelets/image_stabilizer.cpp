@@ -72,8 +72,9 @@ private:
     pub_image_ = advertiseImage(*it_, "stabilizer/image_stabilized", 5);
     pub_info_ = advertise<sensor_msgs::CameraInfo>(nh, "stabilizer/camera_info", 5);
     pub_pose_ = advertise<PoseDelta>(nh, "stabilizer/image_stabilized/pose", 10);
-    startSubscriptions("inputs (camera/image_raw, camera/camera_info, points, pose_delta) are subscribed on demand, "
-                       "while stabilizer/image_stabilized or its pose has subscribers");
+    startSubscriptions(
+        "inputs (camera/image_raw, camera/camera_info, points, pose_delta) are subscribed on demand, "
+        "while stabilizer/image_stabilized or its pose has subscribers");
   }
 
   void subscribe() override
@@ -111,6 +112,8 @@ private:
   {
     std::lock_guard<std::mutex> lock(mutex_);
     info_ = msg;
+    if (!pending_lock_.isZero())
+      setReference(pending_lock_);
   }
 
   void pointsCb(const sensor_msgs::PointCloud2ConstPtr& msg)
@@ -119,6 +122,10 @@ private:
     clouds_[msg->header.stamp] = msg;
     while (!clouds_.empty() && (msg->header.stamp - clouds_.begin()->first).toSec() > kCloudHistoryS)
       clouds_.erase(clouds_.begin());
+    // The lock's pose can come before its cloud (they travel on two topics,
+    // in a multi-threaded manager on two callbacks): it waits for it.
+    if (msg->header.stamp == pending_lock_)
+      setReference(pending_lock_);
   }
 
   void imageCb(const sensor_msgs::ImageConstPtr& msg)
@@ -145,6 +152,8 @@ private:
           std::lock_guard<std::mutex> lock(mutex_);
           if (msg->status.find(kLockedPhrase) != std::string::npos)
             setReference(msg->header.stamp);
+          else if (!stabilizer_ && pending_lock_.isZero() && msg->valid)
+            adoptReference(*msg);
           poses_[msg->header.stamp] = msg;
           while (poses_.size() > 50)
             poses_.erase(poses_.begin());
@@ -152,25 +161,51 @@ private:
         });
   }
 
-  // The locked frame's map becomes the reference (mutex_ held).
+  // Subscribed after the lock (lazy: the lock came before a subscriber):
+  // the reference surface from a later valid frame's map, moved into the
+  // reference camera frame with that frame's pose (p_ref = T^-1 p_cur).
+  void adoptReference(const PoseDelta& pose)
+  {
+    const auto cloud = clouds_.find(pose.header.stamp);
+    if (cloud == clouds_.end() || !info_)
+      return;
+    const Eigen::Isometry3d cur_from_ref = isometryFromTransform(pose.transform);
+    buildReference(*cloud->second, &cur_from_ref, pose.header.stamp);
+  }
+
+  // The locked frame's map becomes the reference (mutex_ held). Until its
+  // cloud and a camera_info are here the lock waits (pending_lock_).
   void setReference(const ros::Time& stamp)
   {
+    // The poses from this lock on are relative to the new reference: the
+    // old one warps none of them.
+    if (stamp != pending_lock_)
+      stabilizer_.reset();
+    pending_lock_ = stamp;
     const auto cloud = clouds_.find(stamp);
+    if (cloud == clouds_.end() || !info_)
+      return;
+    pending_lock_ = ros::Time();
+    buildReference(*cloud->second, nullptr, stamp);
+  }
+
+  // The stabilizer from a beam map (cur_from_ref: the map's frame from the
+  // reference's; null: the map is the reference's own).
+  void buildReference(const sensor_msgs::PointCloud2& cloud, const Eigen::Isometry3d* cur_from_ref,
+                      const ros::Time& stamp)
+  {
     std::string why;
     CameraModel camera;
     int rows = 0, cols = 0;
     std::vector<Eigen::Vector3d> points;
     std::vector<float> intensity;
     ReferenceSurface surface;
-    if (cloud == clouds_.end())
-      why = "the locked frame's points are not here (pose and cloud stamps differ?)";
-    else if (!info_)
-      why = "no camera_info yet";
-    else if (!cameraModelFromInfo(*info_, &camera, &why))
+    if (!cameraModelFromInfo(*info_, &camera, &why))
       why = "camera_info unusable: " + why;
-    else if (!readBeamCloud(*cloud->second, &rows, &cols, &points, &intensity, &why))
+    else if (!readBeamCloud(cloud, &rows, &cols, &points, &intensity, &why))
       why = "the locked cloud is unreadable: " + why;
-    else if (surface.build(rows, cols, points, params_.surface, &why))
+    else if ((cur_from_ref ? moveToReference(*cur_from_ref, &points) : true) &&
+             surface.build(rows, cols, points, params_.surface, &why))
     {
       auto stabilizer = std::make_shared<ImageStabilizer>(params_);
       if (stabilizer->setReference(camera, surface, &why))
@@ -182,6 +217,15 @@ private:
       }
     }
     dropFrame("no stabilised image until the next lock: " + why);
+  }
+
+  static bool moveToReference(const Eigen::Isometry3d& cur_from_ref, std::vector<Eigen::Vector3d>* points)
+  {
+    const Eigen::Isometry3d ref_from_cur = cur_from_ref.inverse();
+    for (Eigen::Vector3d& p : *points)
+      if (p.allFinite())
+        p = ref_from_cur * p;
+    return true;
   }
 
   // Warps every buffered image whose pose has come (mutex_ held).
@@ -262,6 +306,7 @@ private:
   sensor_msgs::CameraInfoConstPtr info_;
   std::map<ros::Time, sensor_msgs::PointCloud2ConstPtr> clouds_;
   std::map<ros::Time, PoseDeltaConstPtr> poses_;
+  ros::Time pending_lock_;  // a lock whose cloud or camera_info has not come yet (zero: none)
   std::deque<sensor_msgs::ImageConstPtr> images_;
   std::shared_ptr<const ImageStabilizer> stabilizer_;
   int64_t frames_published_ = 0, frames_invalid_ = 0, frames_without_pose_ = 0;
