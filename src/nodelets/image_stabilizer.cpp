@@ -204,11 +204,11 @@ private:
       why = "camera_info unusable: " + why;
     else if (!readBeamCloud(cloud, &rows, &cols, &points, &intensity, &why))
       why = "the locked cloud is unreadable: " + why;
-    else if ((cur_from_ref ? moveToReference(*cur_from_ref, &points) : true) &&
-             surface.build(rows, cols, points, params_.surface, &why))
+    else
     {
+      moveToReference(cur_from_ref, &points);
       auto stabilizer = std::make_shared<ImageStabilizer>(params_);
-      if (stabilizer->setReference(camera, surface, &why))
+      if (surface.build(rows, cols, points, params_.surface, &why) && stabilizer->setReference(camera, surface, &why))
       {
         stabilizer_ = stabilizer;
         NODELET_INFO("ImageStabilizer: reference locked at %.3f (%d points, %dx%d image)", stamp.toSec(),
@@ -219,13 +219,15 @@ private:
     dropFrame("no stabilised image until the next lock: " + why);
   }
 
-  static bool moveToReference(const Eigen::Isometry3d& cur_from_ref, std::vector<Eigen::Vector3d>* points)
+  // p_ref = T^-1 p_cur for each measured point (nothing when the map is the reference's own).
+  static void moveToReference(const Eigen::Isometry3d* cur_from_ref, std::vector<Eigen::Vector3d>* points)
   {
-    const Eigen::Isometry3d ref_from_cur = cur_from_ref.inverse();
+    if (!cur_from_ref)
+      return;
+    const Eigen::Isometry3d ref_from_cur = cur_from_ref->inverse();
     for (Eigen::Vector3d& p : *points)
       if (p.allFinite())
         p = ref_from_cur * p;
-    return true;
   }
 
   // Warps every buffered image whose pose has come (mutex_ held).
