@@ -15,9 +15,11 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <deque>
 #include <memory>
 #include <mutex>
 #include <string>
+#include <utility>
 
 #include <boost/thread/recursive_mutex.hpp>
 #include <cv_bridge/cv_bridge.h>
@@ -171,10 +173,11 @@ private:
     if (want_images && !sub_image_)
     {
       image_transport::TransportHints hints("raw", ros::TransportHints(), getPrivateNodeHandle());
-      sub_image_ = it_->subscribe("camera/image_raw", 5, &PoseDeltaNodelet::imageCb, this, hints);
-      sub_info_ = getNodeHandle().subscribe("camera/camera_info", 5, &PoseDeltaNodelet::infoCb, this);
+      sub_image_ = it_->subscribe("camera/image_raw", image_queue_size_, &PoseDeltaNodelet::imageCb, this, hints);
+      sub_info_ = getNodeHandle().subscribe("camera/camera_info", image_queue_size_, &PoseDeltaNodelet::infoCb, this);
       if (strobe_)
-        sub_ambient_ = it_->subscribe("camera/image_ambient", 5, &PoseDeltaNodelet::ambientCb, this, hints);
+        sub_ambient_ =
+            it_->subscribe("camera/image_ambient", image_queue_size_, &PoseDeltaNodelet::ambientCb, this, hints);
       images_subscribed_ = true;
     }
     else if (!want_images && sub_image_)
@@ -186,6 +189,7 @@ private:
       std::lock_guard<std::mutex> lock(buffer_mutex_);
       matcher_.clearImages();
       ambient_pairing_.clear();
+      before_first_info_.clear();
     }
   }
 
@@ -282,6 +286,10 @@ private:
   {
     std::lock_guard<std::mutex> lock(buffer_mutex_);
     latest_info_ = info;
+    std::deque<FramePair> waiting;
+    waiting.swap(before_first_info_);
+    for (const FramePair& f : waiting)
+      handleFrame(f.first, f.second);
   }
 
   void imageCb(const sensor_msgs::ImageConstPtr& image)
@@ -310,6 +318,28 @@ private:
   // Called with buffer_mutex_ held: one frame at a time, in order. Strobed,
   // a frame waits for the ambient frame after it.
   void handleFrame(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
+  {
+    // The texture needs the camera model. The first frames can beat the first
+    // camera_info (a replayed bag, a slow link: the subscriptions connect one
+    // by one); they wait for it, in order, instead of going on without their
+    // texture (a reference locked so would differ from run to run). At most
+    // ~image_queue_size wait; beyond that the oldest goes on without texture.
+    if (image && !latest_info_ && images_subscribed_)
+    {
+      before_first_info_.emplace_back(cloud, image);
+      if (static_cast<int>(before_first_info_.size()) <= image_queue_size_)
+        return;
+      NODELET_WARN_THROTTLE(10.0, "PoseDelta: no camera_info on %s yet; a frame goes on without its texture",
+                            getNodeHandle().resolveName("camera/camera_info").c_str());
+      const FramePair oldest = before_first_info_.front();
+      before_first_info_.pop_front();
+      processFrame(oldest.first, oldest.second);
+      return;
+    }
+    processFrame(cloud, image);
+  }
+
+  void processFrame(const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
   {
     if (strobe_ && images_subscribed_)
       ambient_pairing_.addFrame(cloud, image, release_strobed_);
@@ -558,6 +588,8 @@ private:
       [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image)
   { handleFrame(cloud, image); };
   sensor_msgs::CameraInfoConstPtr latest_info_;
+  using FramePair = std::pair<sensor_msgs::PointCloud2ConstPtr, sensor_msgs::ImageConstPtr>;
+  std::deque<FramePair> before_first_info_;  // frames with an image, before any camera_info
   AmbientPairing ambient_pairing_;
   const AmbientPairing::Release release_strobed_ =
       [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image,

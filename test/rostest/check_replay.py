@@ -247,7 +247,9 @@ class ReplayRoundTrip(unittest.TestCase):
                 self.assertEqual(bytes(other[0][stamp].data), bytes(msg.data), "%s: points differ" % name)
             for stamp, msg in r1[1].items():
                 o = other[1][stamp]
-                self.assertEqual((o.valid, o.status, o.points_used), (msg.valid, msg.status, msg.points_used))
+                self.assertEqual((o.valid, o.status, o.points_used), (msg.valid, msg.status, msg.points_used),
+                                 "%s: pose_delta of frame %d of %d (stamp %d) differs from the first replay's"
+                                 % (name, sorted(r1[1]).index(stamp), len(r1[1]), stamp))
                 self.assertTrue(np.array_equal(transform_matrix(o.transform), transform_matrix(msg.transform)), "%s: pose differs" % name)
                 self.assertEqual(tuple(o.covariance), tuple(msg.covariance))
 
