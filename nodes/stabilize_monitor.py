@@ -219,6 +219,10 @@ class Monitor:
             self.truth.setdefault(stamp, [None, None])[which] = vec6(msg)
             if self.t0 is None:
                 self.t0 = stamp
+                # The lock's own pose_delta can go out before this monitor's
+                # subscription connects: the truth offsets start at the lock.
+                if self.lock_stamp is None:
+                    self.lock_stamp = stamp
                 rospy.loginfo("stabilize_monitor: truth from the locked pose flowing; %.0f s to go", self.duration)
 
     def on_command(self, msg):
@@ -236,8 +240,8 @@ class Monitor:
             self.valid += int(msg.valid)
             if LOCKED in msg.status:
                 self.lock_stamp = msg.header.stamp.to_sec()
-                if self.lock_stamp in self.clouds:
-                    self.dots = self.clouds[self.lock_stamp]
+                later = [k for k in sorted(self.clouds) if k >= self.lock_stamp]
+                self.dots = self.clouds[later[0]] if later else None
 
     def on_points(self, msg):
         xyz = cloud_xyz(msg)
@@ -246,7 +250,13 @@ class Monitor:
             self.clouds[stamp] = xyz[np.all(np.isfinite(xyz), axis=1)]
             for old in [k for k in self.clouds if k < stamp - 3.0]:
                 del self.clouds[old]
-            if self.lock_stamp == stamp:
+            # The dots at the lock; when the monitor's subscription missed
+            # that frame (the lock comes with the first frame, in real time
+            # often before this subscriber connects), the first frame after
+            # it: the dots only sample where the image motion is measured,
+            # and they moved by the loop's residual (mm at 1.5 m) since.
+            if self.lock_stamp == stamp or (self.dots is None and self.lock_stamp is not None
+                                            and stamp > self.lock_stamp):
                 self.dots = self.clouds[stamp]
 
     def on_info(self, msg):

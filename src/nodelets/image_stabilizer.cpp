@@ -152,13 +152,21 @@ private:
           std::lock_guard<std::mutex> lock(mutex_);
           if (msg->status.find(kLockedPhrase) != std::string::npos)
             setReference(msg->header.stamp);
-          else if (!stabilizer_ && pending_lock_.isZero() && msg->valid)
+          else if (!stabilizer_ && (pending_lock_.isZero() || lockCloudMissed()) && msg->valid)
             adoptReference(*msg);
           poses_[msg->header.stamp] = msg;
           while (poses_.size() > 50)
             poses_.erase(poses_.begin());
           serve();
         });
+  }
+
+  // The pending lock's cloud will not come: a later cloud is here and
+  // clouds arrive in order (it went out before the points subscription
+  // connected). The reference is then adopted from a later frame.
+  bool lockCloudMissed() const
+  {
+    return !clouds_.empty() && clouds_.rbegin()->first > pending_lock_ && clouds_.count(pending_lock_) == 0;
   }
 
   // Subscribed after the lock (lazy: the lock came before a subscriber):
@@ -170,6 +178,7 @@ private:
     if (cloud == clouds_.end() || !info_)
       return;
     const Eigen::Isometry3d cur_from_ref = isometryFromTransform(pose.transform);
+    pending_lock_ = ros::Time();
     buildReference(*cloud->second, &cur_from_ref, pose.header.stamp);
   }
 

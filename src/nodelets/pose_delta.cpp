@@ -376,13 +376,34 @@ private:
     map_received_ = map_received_ || std::any_of(input.points.begin(), input.points.end(),
                                                  [](const Eigen::Vector3d& p) { return p.allFinite(); });
     input.stamp_s = cloud->header.stamp.toSec();
+    // A reference locked without its image has no texture for as long as it
+    // stays locked (tx, ty, rz unobservable on smooth rock). The first cloud
+    // often comes without one: its image went out before this nodelet's
+    // image subscription connected, or before the first camera_info. The
+    // lock waits for a frame that has both, for up to kLockWaitFrames frames
+    // (then it locks on the geometry alone, as before).
+    if (estimator_.lockPending() && estimator_.params().use_texture && images_subscribed_ &&
+        (!image || !latest_info_) && lock_waits_ < kLockWaitFrames)
+    {
+      ++lock_waits_;
+      fillInvalid(msg.get(), std::string("reference lock waits for a frame with its ") +
+                                 (image ? "camera_info" : "image") + " (texture on)");
+      publish(msg, start, false);
+      return;
+    }
     if (image && estimator_.params().use_texture)
       prepareImage(image, &input, &swapped_[0]);
     if (estimator_.params().use_texture)
       prepareAmbient(ambient_before, ambient_after, &input);
     const PoseDeltaResult r = estimator_.process(input);
     if (r.locked_now)
+    {
+      if (lock_waits_ > 0)
+        NODELET_INFO("PoseDelta: the lock waited %d frame(s) for %s", lock_waits_,
+                     image && latest_info_ ? "a frame with its image and camera_info" : "images; none came");
+      lock_waits_ = 0;
       NODELET_INFO("PoseDelta: reference locked at %.3f (%d points)", cloud->header.stamp.toSec(), r.points_used);
+    }
     fillFromResult(r, msg.get());
     last_features_ = r.features_used;
     if (!r.valid)
@@ -590,6 +611,8 @@ private:
   sensor_msgs::CameraInfoConstPtr latest_info_;
   using FramePair = std::pair<sensor_msgs::PointCloud2ConstPtr, sensor_msgs::ImageConstPtr>;
   std::deque<FramePair> before_first_info_;  // frames with an image, before any camera_info
+  static constexpr int kLockWaitFrames = 10;
+  int lock_waits_ = 0;  // frames the pending lock has passed over for want of an image
   AmbientPairing ambient_pairing_;
   const AmbientPairing::Release release_strobed_ =
       [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image,
