@@ -233,8 +233,8 @@ public:
     for (int k = 0; k < p_.reflections; ++k)
     {
       // A glint: a dot-like spot at a random place on the print.
-      const Eigen::Vector3d on_board(uni(*rng) * p_.board.cols * p_.board.square_m,
-                                     uni(*rng) * p_.board.rows * p_.board.square_m, 0);
+      const double fy = uni(*rng), fx = uni(*rng);  // sequenced draws (docs/testing.md)
+      const Eigen::Vector3d on_board(fx * p_.board.cols * p_.board.square_m, fy * p_.board.rows * p_.board.square_m, 0);
       out.push_back({proj.beams[0].origin, (pose_ * on_board - proj.beams[0].origin).normalized()});
     }
     return out;

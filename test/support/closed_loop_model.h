@@ -221,7 +221,10 @@ private:
     v1 << -p_.ambiguity_depth_m, 0, 0, 0, 1, 0;
     v2 << 0, p_.ambiguity_depth_m, 0, 1, 0, 0;
     if (p_.noise_ambiguity_rad > 0.0)
-      n += p_.noise_ambiguity_rad * (gauss_(rng_) * v1 + gauss_(rng_) * v2);
+    {
+      const double a2 = gauss_(rng_), a1 = gauss_(rng_);  // sequenced draws (docs/testing.md)
+      n += p_.noise_ambiguity_rad * (a1 * v1 + a2 * v2);
+    }
     StabilizationEstimate e;
     e.stamp = t;
     e.transform = applyIncrement(n, truth * lock_estimate_.inverse());

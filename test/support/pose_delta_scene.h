@@ -137,11 +137,14 @@ inline Eigen::Isometry3d randomDelta(std::mt19937& rng, double t_max, double r_m
 {
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.linear() = (Eigen::AngleAxisd(r_max * u(rng), Eigen::Vector3d::UnitX()) *
-                Eigen::AngleAxisd(r_max * u(rng), Eigen::Vector3d::UnitY()) *
-                Eigen::AngleAxisd(r_max * u(rng), Eigen::Vector3d::UnitZ()))
+  // Sequenced draws (docs/testing.md): the order gcc evaluated them in.
+  const double rz = u(rng), ry = u(rng), rx = u(rng);
+  T.linear() = (Eigen::AngleAxisd(r_max * rx, Eigen::Vector3d::UnitX()) *
+                Eigen::AngleAxisd(r_max * ry, Eigen::Vector3d::UnitY()) *
+                Eigen::AngleAxisd(r_max * rz, Eigen::Vector3d::UnitZ()))
                    .toRotationMatrix();
-  T.translation() = Eigen::Vector3d(t_max * u(rng), t_max * u(rng), t_max * u(rng));
+  const double tz = u(rng), ty = u(rng), tx = u(rng);
+  T.translation() = Eigen::Vector3d(t_max * tx, t_max * ty, t_max * tz);
   return T;
 }
 

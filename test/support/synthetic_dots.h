@@ -216,8 +216,9 @@ inline std::vector<cv::Point2d> dotPositions(const Config& cfg, std::mt19937& rn
     for (int c = 0; c < cfg.cols; ++c)
     {
       const double u = (c - 0.5 * (cfg.cols - 1)) * cfg.pitch_px, v = (r - 0.5 * (cfg.rows - 1)) * cfg.pitch_px;
-      dots.emplace_back(0.5 * (cfg.width - 1) + cr * u - sr * v + cfg.position_jitter_px * (uni(rng) - 0.5) * 2,
-                        0.5 * (cfg.height - 1) + sr * u + cr * v + cfg.position_jitter_px * (uni(rng) - 0.5) * 2);
+      const double jy = uni(rng), jx = uni(rng);  // sequenced draws (docs/testing.md)
+      dots.emplace_back(0.5 * (cfg.width - 1) + cr * u - sr * v + cfg.position_jitter_px * (jx - 0.5) * 2,
+                        0.5 * (cfg.height - 1) + sr * u + cr * v + cfg.position_jitter_px * (jy - 0.5) * 2);
     }
   return dots;
 }
@@ -244,7 +245,8 @@ inline void paintClutter(const Config& cfg, std::mt19937& rng, cv::Mat* radiance
   {
     for (;;)
     {
-      const cv::Point2d c(20 + uni(rng) * (W - 40), 20 + uni(rng) * (H - 40));
+      const double fy = uni(rng), fx = uni(rng);  // sequenced draws (docs/testing.md)
+      const cv::Point2d c(20 + fx * (W - 40), 20 + fy * (H - 40));
       bool clear = true;
       for (const cv::Point2d& d : f->dots)
         clear = clear && std::hypot(c.x - d.x, c.y - d.y) > cfg.clutter_clearance_px;

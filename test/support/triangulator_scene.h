@@ -298,7 +298,10 @@ inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& p
     f.truth[i] = p;
     f.pixels[i] = px;
     if (uni(rng) >= o.drop_fraction)
-      f.spots.push_back(spotAt(cv::Point2d(px.x + noise(rng), px.y + noise(rng)), i));
+    {
+      const double ny = noise(rng), nx = noise(rng);  // sequenced draws (docs/testing.md)
+      f.spots.push_back(spotAt(cv::Point2d(px.x + nx, px.y + ny), i));
+    }
   }
   const auto addClutter = [&](const cv::Point2d& px)
   {
@@ -308,7 +311,10 @@ inline Frame sequenceFrame(const CameraModel& cam, const ProjectorCalibration& p
   for (const Eigen::Vector3d& w : rock_points)
     addClutter(cam.project(inv * w));
   for (int c = 0; c < o.random_clutter; ++c)
-    addClutter(cv::Point2d(uni(rng) * (cam.width - 1), uni(rng) * (cam.height - 1)));
+  {
+    const double fy = uni(rng), fx = uni(rng);  // sequenced draws (docs/testing.md)
+    addClutter(cv::Point2d(fx * (cam.width - 1), fy * (cam.height - 1)));
+  }
   std::shuffle(f.spots.begin(), f.spots.end(), rng);
   return f;
 }
@@ -325,7 +331,8 @@ inline std::vector<Eigen::Vector3d> rockClutterPoints(const CameraModel& cam, co
   std::vector<Eigen::Vector3d> out;
   while (static_cast<int>(out.size()) < count)
   {
-    const Eigen::Vector2d n = cam.normalize(cv::Point2d(uni(rng) * cam.width, uni(rng) * cam.height));
+    const double fy = uni(rng), fx = uni(rng);  // sequenced draws (docs/testing.md)
+    const Eigen::Vector2d n = cam.normalize(cv::Point2d(fx * cam.width, fy * cam.height));
     Eigen::Vector3d hit;
     if (rock.intersect(Eigen::Vector3d::Zero(), Eigen::Vector3d(n.x(), n.y(), 1.0).normalized(), &hit))
       out.push_back(hit);

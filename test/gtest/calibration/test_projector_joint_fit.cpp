@@ -43,8 +43,9 @@ JointFitView syntheticView(const CameraModel& cam, const ProjectorCalibration& p
   {
     const cv::Point2d p = cam.project(pose * board.corner(k));
     v.corner_board.push_back(board.corner(k));
-    v.corner_px.emplace_back(p.x + o.noise_scale * o.corner_noise_px * n01(rng),
-                             p.y + o.noise_scale * o.corner_noise_px * n01(rng));
+    const double ny = n01(rng), nx = n01(rng);  // sequenced draws (docs/testing.md)
+    v.corner_px.emplace_back(p.x + o.noise_scale * o.corner_noise_px * nx,
+                             p.y + o.noise_scale * o.corner_noise_px * ny);
   }
   const Eigen::Vector3d n = pose.linear().col(2);
   for (int b = 0; b < proj.beamCount(); ++b)
@@ -58,7 +59,8 @@ JointFitView syntheticView(const CameraModel& cam, const ProjectorCalibration& p
       continue;
     const double s = o.noise_scale * (alb > 0.5 ? o.dot_noise_white_px : o.dot_noise_black_px);
     v.dot_beam.push_back(b);
-    v.dot_px.emplace_back(p.x + s * n01(rng), p.y + s * n01(rng));
+    const double ny = n01(rng), nx = n01(rng);  // sequenced draws (docs/testing.md)
+    v.dot_px.emplace_back(p.x + s * nx, p.y + s * ny);
     v.dot_sigma_px.push_back(alb > 0.5 ? o.dot_noise_white_px : o.dot_noise_black_px);
   }
   for (int k = 0; k < o.outliers && k < static_cast<int>(v.dot_px.size()); ++k)
@@ -201,7 +203,10 @@ TEST(ProjectorJointFit, BeamsWithoutACommonCentreAreDetected)
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> u(-0.004, 0.004);
   for (BeamRay& r : truth.beams)
-    r.origin += Eigen::Vector3d(u(rng), u(rng), 0.0);
+  {
+    const double dy = u(rng), dx = u(rng);  // sequenced draws (docs/testing.md)
+    r.origin += Eigen::Vector3d(dx, dy, 0.0);
+  }
   const BoardParams board;
   const std::vector<JointFitView> views = sixViews(cam, truth, board, 0, 21);
   const JointFitResult res = fitProjectorJoint(cam, 10, 10, views);

@@ -580,7 +580,8 @@ TEST(SpotDetectorInputs, NoiseFramesAndTheCandidateBudget)
   int added = 0;
   for (int tries = 0; added < 1500 && tries < 100000; ++tries)
   {
-    const cv::Point2d c(rng.uniform(8.0, crowded.cols - 8.0), rng.uniform(8.0, crowded.rows - 8.0));
+    const double cy = rng.uniform(8.0, crowded.rows - 8.0), cx = rng.uniform(8.0, crowded.cols - 8.0);  // sequenced draws (docs/testing.md)
+    const cv::Point2d c(cx, cy);
     bool near = false;
     for (const cv::Point2d& d : f.dots)
       near = near || std::hypot(d.x - c.x, d.y - c.y) < 12.0;

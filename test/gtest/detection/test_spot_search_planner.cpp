@@ -124,11 +124,17 @@ TEST(SpotSearchRegions, MergedAsByTheDefinition)
     for (int k = 0; k < n; ++k)
     {
       if (rng.uniform(0, 20) == 0)
-        in.emplace_back(0, rng.uniform(-40, 480), 640, rng.uniform(10, 120));  // a band
+      {
+        const int bh = rng.uniform(10, 120), by = rng.uniform(-40, 480);  // sequenced draws (docs/testing.md)
+        in.emplace_back(0, by, 640, bh);  // a band
+      }
       else
       {
         const int h = rng.uniform(4, 40);
-        in.emplace_back(rng.uniform(-30, 650), rng.uniform(-30, 500), h, rng.uniform(std::max(4, h - 8), h + 8));
+        // Sequenced draws (docs/testing.md).
+        const int height = rng.uniform(std::max(4, h - 8), h + 8), y = rng.uniform(-30, 500),
+                  x = rng.uniform(-30, 650);
+        in.emplace_back(x, y, h, height);
       }
     }
     const std::vector<cv::Rect> expected = mergeByDefinition(in, frame);

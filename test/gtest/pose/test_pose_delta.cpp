@@ -141,7 +141,8 @@ TEST(BeamSurface, InterpolatesTheRockBetweenTheDots)
   for (int k = 0; k < 2000; ++k)
   {
     std::uniform_real_distribution<double> u(0.3, 8.7);
-    Eigen::Vector2d uv(u(rng), u(rng));
+    const double v = u(rng), u_ = u(rng);  // sequenced draws (docs/testing.md)
+    Eigen::Vector2d uv(u_, v);
     Eigen::Vector3d s;
     ASSERT_TRUE(surface.evaluate(uv.x(), uv.y(), &s));
     // Distance of the interpolated point from the true height field along z.

@@ -287,7 +287,9 @@ TEST(TriangulatorSim, SequenceWithTrackingPrior)
     while (rock_clutter.size() < 10)
     {
       Eigen::Vector3d h;
-      if (sim.intersect(0.0, Eigen::Vector3d::Zero(), Eigen::Vector3d(uni(rng), 0.75 * uni(rng), 1.0).normalized(), &h))
+      const double dy = 0.75 * uni(rng);  // sequenced draws: argument order is unspecified (docs/testing.md)
+      const double dx = uni(rng);
+      if (sim.intersect(0.0, Eigen::Vector3d::Zero(), Eigen::Vector3d(dx, dy, 1.0).normalized(), &h))
         rock_clutter.push_back(rock_from_cam0 * h);
     }
     const int frames = 300;
