@@ -323,17 +323,21 @@ private:
     // camera_info (a replayed bag, a slow link: the subscriptions connect one
     // by one); they wait for it, in order, instead of going on without their
     // texture (a reference locked so would differ from run to run). At most
-    // ~image_queue_size wait; beyond that the oldest goes on without texture.
-    if (image && !latest_info_ && images_subscribed_)
+    // ~image_queue_size wait; beyond that camera_info is taken as silent:
+    // they all go on without texture, and later frames do not wait (no
+    // standing delay in the loop).
+    if (image && !latest_info_ && images_subscribed_ && !info_wait_over_)
     {
       before_first_info_.emplace_back(cloud, image);
       if (static_cast<int>(before_first_info_.size()) <= image_queue_size_)
         return;
-      NODELET_WARN_THROTTLE(10.0, "PoseDelta: no camera_info on %s yet; a frame goes on without its texture",
-                            getNodeHandle().resolveName("camera/camera_info").c_str());
-      const FramePair oldest = before_first_info_.front();
-      before_first_info_.pop_front();
-      processFrame(oldest.first, oldest.second);
+      NODELET_WARN("PoseDelta: no camera_info on %s after %d frames; frames go on without their texture",
+                   getNodeHandle().resolveName("camera/camera_info").c_str(), image_queue_size_);
+      info_wait_over_ = true;
+      std::deque<FramePair> waiting;
+      waiting.swap(before_first_info_);
+      for (const FramePair& f : waiting)
+        processFrame(f.first, f.second);
       return;
     }
     processFrame(cloud, image);
@@ -611,6 +615,7 @@ private:
   sensor_msgs::CameraInfoConstPtr latest_info_;
   using FramePair = std::pair<sensor_msgs::PointCloud2ConstPtr, sensor_msgs::ImageConstPtr>;
   std::deque<FramePair> before_first_info_;  // frames with an image, before any camera_info
+  bool info_wait_over_ = false;              // camera_info silent for ~image_queue_size frames
   static constexpr int kLockWaitFrames = 10;
   int lock_waits_ = 0;  // frames the pending lock has passed over for want of an image
   AmbientPairing ambient_pairing_;
