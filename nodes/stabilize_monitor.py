@@ -283,6 +283,9 @@ class Monitor:
             return [float("nan")] * 4
         errors = np.array(errors)
         mean, square = errors.mean(axis=0), (errors ** 2).mean(axis=0)
+        rospy.loginfo("stabilize_monitor: estimate minus truth, mean per axis: t %s mm, r %s deg (%d frames)",
+                      " ".join("%+.3f" % v for v in 1e3 * mean[:3]),
+                      " ".join("%+.4f" % v for v in np.degrees(mean[3:])), len(errors))
         return [1e3 * float(np.linalg.norm(mean[:3])), 1e3 * math.sqrt(float(square[:3].sum())),
                 math.degrees(float(np.linalg.norm(mean[3:]))), math.degrees(math.sqrt(float(square[3:].sum())))]
 
