@@ -24,7 +24,14 @@ clock, so also on a replayed bag's clock). At shutdown it writes to ~out_file:
   latency_median_ms, latency_p99_ms: publication -> pose_delta
   nodelets: {<diagnostic name>: {callbacks: N, cpu_s: seconds, ms_per_callback}}
 
-Parameters: ~manager (default stabilizer_manager), ~out_file (YAML path).
+  With ~rate (the source's frame rate): ticks, the frames the source should
+  have published from the first pose_delta to the end, and not_published,
+  those it did not (a late driver skips ticks).
+
+Parameters: ~manager (default stabilizer_manager), ~out_file (YAML path),
+~rate (Hz, 0: no ticks), ~duration (s after the first pose_delta, or with
+~pose_delta false after the first frame; then the node writes and exits,
+which ends a launch where it is required; 0: at shutdown only).
 """
 import os
 import threading
@@ -68,6 +75,12 @@ class Probe:
     def __init__(self):
         self.manager = rospy.resolve_name(rospy.get_param("~manager", "stabilizer_manager"))
         self.out_file = rospy.get_param("~out_file", "")
+        self.rate = float(rospy.get_param("~rate", 0.0))
+        self.duration = float(rospy.get_param("~duration", 0.0))
+        self.published_since_first = 0
+        # Without PoseDelta (a detector alone) the run counts from the first frame.
+        self.poses_expected = bool(rospy.get_param("~pose_delta", True))
+        self.first_info = None
         self.nodelets = {}
         self.pid = None
         self.cpu_start = None
@@ -87,6 +100,10 @@ class Probe:
             self.pid = find_pid(self.manager)
             if self.pid is None:
                 return
+        start = self.first_pose if self.poses_expected else self.first_info
+        if self.duration > 0 and start is not None and time.time() - start > self.duration:
+            rospy.signal_shutdown("benchmark_probe: %.0f s measured" % self.duration)
+            return
         cpu = cpu_seconds(self.pid)
         if cpu is None:
             return
@@ -98,6 +115,9 @@ class Probe:
         with self.lock:
             self.published[msg.header.stamp.to_nsec()] = time.time()
             self.infos += 1
+            if self.first_info is None:
+                self.first_info = time.time()
+            self.published_since_first += int(self.first_pose is not None)
 
     def pose_cb(self, msg):
         now = time.time()
@@ -129,7 +149,11 @@ class Probe:
                     lat.append(1e3 * (arrived - t))
             lat = np.array(lat)
             dropped_at.sort()
-        return {
+        ticks = {}
+        if self.rate > 0 and self.first_pose is not None:
+            n = int(round(self.rate * (end - first)))
+            ticks = {"ticks": n, "not_published": max(0, n - self.published_since_first)}
+        return dict(ticks, **{
             "published": self.infos,
             "frames": delivered + len(dropped_at),
             "pose_deltas": delivered,
@@ -138,7 +162,7 @@ class Probe:
             "dropped_at_s": [round(t, 3) for t in dropped_at[:50]],
             "latency_median_ms": float(np.median(lat)) if len(lat) else None,
             "latency_p99_ms": float(np.percentile(lat, 99)) if len(lat) else None,
-        }
+        })
 
     def diagnostics_cb(self, msg):
         for status in msg.status:

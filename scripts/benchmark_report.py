@@ -2,10 +2,13 @@
 """The tables of scripts/benchmark from the YAML files of one run.
 
 usage: benchmark_report.py OUT_DIR BAG
-Reads OUT_DIR/sim_{30,60}.yaml (demo monitor), sim_{30,60}_probe.yaml and
-replay_*.yaml (benchmark probe); prints Markdown.
+Reads OUT_DIR/sim_{30,60}.yaml (demo monitor), sim_{30,60}_probe.yaml,
+replay_*.yaml and live_*.yaml (benchmark probe), benchmark_spot_detector.txt
+and benchmark_pose_delta.txt; prints Markdown, ending with the line
+`ratios: chain A % of the study's chain, tracked B x, full C x, pose texture D x, 120 Hz dropped E of F`.
 """
 import os
+import re
 import sys
 
 import rosbag
@@ -112,6 +115,89 @@ def replay_tables(out, frames):
                                             latency_cells(inside)))
 
 
+LIVE_RUNS = (("side_by_side", "whole chain + the study's chain, same frames, 30 Hz"),
+             ("pipeline", "whole chain alone, 30 Hz"),
+             ("baseline_only", "the study's chain alone, 30 Hz"),
+             ("pipeline_120hz", "whole chain alone, 120 Hz"))
+
+
+def chain_ms(p):
+    parts = [nodelet_ms(p, n) for n in ("spot_detector", "triangulator", "pose_delta")]
+    return sum(parts) if all(v is not None for v in parts) else None
+
+
+def live_tables(out):
+    r = {name: load(os.path.join(out, "live_%s.yaml" % name)) for name, _ in LIVE_RUNS}
+    print("## Live: frames from inside the manager (launch/benchmark_live.launch)\n")
+    print("The bag's frames played by the CameraDriver's images source (decoded beforehand, looped) in the "
+          "pipeline's manager: no rosbag play, no TCP, no deserialisation. Callback CPU per frame (ms), the "
+          "manager's CPU per published frame (the driver's copy into each message included), frames without "
+          "pose_delta within 1 s (dropped), ticks the driver missed, latency camera_info -> pose_delta.\n")
+    print("| run | frames | dropped | ticks missed | SpotDetector | Triangulator | PoseDelta | chain | study's chain | "
+          "manager ms/frame | latency median ms | p99 ms | p99/median | in the manager: median | p99 | p99/median |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, what in LIVE_RUNS:
+        p = r[name]
+        if not p:
+            print("| %s | run failed (live_%s.log) |" % (what, name))
+            continue
+        inside = load(os.path.join(out, "live_%s_latency.yaml" % name)) or {}
+        print("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
+            what, p.get("frames"), p.get("dropped"), p.get("not_published"), fmt(nodelet_ms(p, "spot_detector")),
+            fmt(nodelet_ms(p, "triangulator")), fmt(nodelet_ms(p, "pose_delta")), fmt(chain_ms(p)),
+            fmt(nodelet_ms(p, "spot_detector_baseline")), fmt(per_frame_ms(p, p.get("published"))),
+            latency_cells(p), latency_cells(inside)))
+    s = r["side_by_side"]
+    chain, study = chain_ms(s), nodelet_ms(s, "spot_detector_baseline")
+    alone = [per_frame_ms(r[n], r[n].get("published")) for n in ("pipeline", "baseline_only")]
+    if all(alone):
+        print("\nManagers alone (each with its driver): the whole chain's manager %.2f ms/frame, the study's "
+              "chain's %.2f ms/frame: %.1f %%." % (alone[0], alone[1], 100 * alone[0] / alone[1]))
+    return (100 * chain / study if chain and study else None), r["pipeline_120hz"]
+
+
+def stage_ratios(out):
+    """(tracked, full) from benchmark_spot_detector; (texture on ms, off ms,
+    off valid, frames) of the rock where texture off is meant to be valid."""
+    tracked = full = None
+    try:
+        with open(os.path.join(out, "benchmark_spot_detector.txt")) as f:
+            m = re.search(r"ratio baseline/fast: ([0-9.]+)x full search, ([0-9.]+)x tracked", f.read())
+            if m:
+                full, tracked = float(m.group(1)), float(m.group(2))
+    except OSError:
+        pass
+    pose = {}
+    try:
+        with open(os.path.join(out, "benchmark_pose_delta.txt")) as f:
+            for line in f:
+                m = re.match(r"rougher rock [0-9.]+ m, texture (on|off)\s*:.*?([0-9.]+) ms CPU;.*? (\d+)/(\d+) valid",
+                             line)
+                if m:
+                    pose[m.group(1)] = (float(m.group(2)), int(m.group(3)), int(m.group(4)))
+    except OSError:
+        pass
+    return tracked, full, pose
+
+
+def ratios_line(out, chain_pct, run120):
+    tracked, full, pose = stage_ratios(out)
+    texture = None
+    if "on" in pose and "off" in pose:
+        texture = pose["on"][0] / pose["off"][0]
+        if pose["off"][1] < pose["off"][2]:
+            print("\nPoseDelta's texture ratio: texture off is valid in %d of %d frames on the rougher rock "
+                  "(benchmark_pose_delta): the yardstick is not a valid estimate there." % pose["off"][1:])
+    dropped = ticks = None
+    if run120:
+        ticks = run120.get("ticks")
+        dropped = (run120.get("dropped") or 0) + (run120.get("not_published") or 0)
+    print("\nratios: chain %s %% of the study's chain, tracked %s x, full %s x, pose texture %s x, "
+          "120 Hz dropped %s of %s" % (fmt(chain_pct, "%.1f"), fmt(tracked, "%.1f"), fmt(full, "%.1f"),
+                                     fmt(texture, "%.2f"), dropped if dropped is not None else "n/a",
+                                     ticks if ticks is not None else "n/a"))
+
+
 def main():
     out, bag = sys.argv[1], sys.argv[2]
     with rosbag.Bag(bag) as b:
@@ -119,6 +205,8 @@ def main():
     print("# scripts/benchmark\n")
     sim_table(out)
     replay_tables(out, frames)
+    chain_pct, run120 = live_tables(out)
+    ratios_line(out, chain_pct, run120)
 
 
 if __name__ == "__main__":

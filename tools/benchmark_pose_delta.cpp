@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <iostream>
+#include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -34,10 +35,15 @@ int main(int argc, char** argv)
                         {"rough rock 0.15 m, texture off", 0.15, false, PoseDeltaMode::kReference},
                         {"flat board, texture on        ", 0.0, true, PoseDeltaMode::kReference},
                         // Every valid frame becomes the reference (features chosen anew).
-                        {"rough rock, frame_to_frame    ", 0.15, true, PoseDeltaMode::kFrameToFrame}};
+                        {"rough rock, frame_to_frame    ", 0.15, true, PoseDeltaMode::kFrameToFrame},
+                        // A rock whose relief alone pins every axis (texture off valid):
+                        // the yardstick of the texture's cost.
+                        {"rougher rock 0.4 m, texture on ", 0.4, true, PoseDeltaMode::kReference},
+                        {"rougher rock 0.4 m, texture off", 0.4, false, PoseDeltaMode::kReference}};
+  constexpr int kCases = sizeof(cases) / sizeof(cases[0]);
   const int only = argc > 2 ? std::atoi(argv[2]) : -1;
   const double dt = argc > 3 && std::atof(argv[3]) > 0.0 ? std::atof(argv[3]) : 0.1;
-  for (int ci = 0; ci < 4; ++ci)
+  for (int ci = 0; ci < kCases; ++ci)
   {
     const Case& c = cases[ci];
     if (only >= 0 && ci != only)
@@ -70,6 +76,7 @@ int main(int argc, char** argv)
 
     std::vector<double> ms;
     int valid = 0, features = 0, iterations = 0;
+    std::string why;  // the first invalid frame's status
     const std::clock_t c0 = std::clock();
     for (int k = 1; k <= frames; ++k)
     {
@@ -77,6 +84,8 @@ int main(int argc, char** argv)
       const PoseDeltaResult r = est.process(inputs[k]);
       ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
       valid += r.valid ? 1 : 0;
+      if (!r.valid && why.empty())
+        why = r.status;
       features += r.features_used;
       iterations += r.iterations;
     }
@@ -88,7 +97,8 @@ int main(int argc, char** argv)
     std::cout << c.name << ": " << sum / frames << " ms/frame mean, " << ms[ms.size() / 2] << " median, "
               << ms[ms.size() * 95 / 100] << " p95 (wall), " << cpu_ms << " ms CPU; lock " << lock_ms << " ms; "
               << valid << "/" << frames << " valid, " << features / frames << " texture features/frame, "
-              << static_cast<double>(iterations) / frames << " iterations/frame\n";
+              << static_cast<double>(iterations) / frames << " iterations/frame"
+              << (why.empty() ? "" : "; first invalid: " + why) << "\n";
   }
   return 0;
 }

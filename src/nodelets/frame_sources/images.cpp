@@ -57,6 +57,7 @@ public:
   {
     dir_ = ctx.pnh.param<std::string>("image_dir", "");
     loop_ = ctx.pnh.param("loop", true);
+    preload_ = ctx.pnh.param("preload", false);
   }
 
   bool open(std::string* why) override
@@ -65,6 +66,26 @@ public:
     next_ = 0;
     published_in_pass_ = 0;
     backed_off_ = false;
+    // ~preload: every image decoded once, here, and published from memory
+    // (as a live camera's frames: no decoding in the frame loop). The
+    // folder is then not listed again.
+    if (preload_ && !files_.empty() && loaded_.empty())
+    {
+      for (const std::string& f : files_)
+      {
+        cv::Mat m = read(f);
+        if (m.empty())
+          continue;
+        std::string encoding;
+        cv::Mat published = asPublished(m, &encoding);
+        loaded_.push_back({published, encoding});
+      }
+      if (loaded_.empty())
+      {
+        *why = "none of the " + std::to_string(files_.size()) + " images of '" + dir_ + "' could be read";
+        return false;
+      }
+    }
     return !files_.empty();
   }
 
@@ -76,6 +97,8 @@ public:
 
   GrabResult grab(double /*rate*/, Frame* frame) override
   {
+    if (!loaded_.empty())
+      return grabLoaded(frame);
     if (next_ == files_.size())
     {
       if (!loop_)
@@ -105,6 +128,24 @@ public:
   }
 
 private:
+  GrabResult grabLoaded(Frame* frame)
+  {
+    if (next_ >= loaded_.size())
+    {
+      if (!loop_)
+        return {GrabStatus::kEnd, "published the " + std::to_string(loaded_.size()) + " preloaded images of '" +
+                                      dir_ + "' once (~loop is false)"};
+      next_ = 0;
+    }
+    if (!ctx_.stamp(&frame->stamp))
+      return {GrabStatus::kSkip, ""};
+    const Loaded& l = loaded_[next_++];
+    frame->processing_ms = 0.0;
+    frame->image = l.image;  // shared, read-only: the driver copies it into the message
+    frame->encoding = l.encoding;
+    return {GrabStatus::kFrame, ""};
+  }
+
   // The file's pixels; empty when it is not a readable image.
   static cv::Mat read(const std::string& path)
   {
@@ -125,6 +166,13 @@ private:
   size_t next_ = 0;  // index in files_ of the next frame
   int published_in_pass_ = 0;
   bool backed_off_ = false;  // the wait after a pass of unreadable files is done
+  bool preload_ = false;
+  struct Loaded
+  {
+    cv::Mat image;
+    std::string encoding;
+  };
+  std::vector<Loaded> loaded_;  // ~preload: the folder's images, decoded
 };
 
 }  // namespace
