@@ -48,6 +48,7 @@ from sensor_msgs.msg import CameraInfo
 from structured_light_stabilizer.msg import PoseDelta
 
 IN_FLIGHT_S = 1.0
+START_TIMEOUT_S = 60.0  # with ~duration: the longest wait for the first frame or pose_delta
 
 
 def find_pid(name):
@@ -81,6 +82,7 @@ class Probe:
         # Without PoseDelta (a detector alone) the run counts from the first frame.
         self.poses_expected = bool(rospy.get_param("~pose_delta", True))
         self.first_info = None
+        self.started = time.time()
         self.nodelets = {}
         self.pid = None
         self.cpu_start = None
@@ -103,6 +105,11 @@ class Probe:
         start = self.first_pose if self.poses_expected else self.first_info
         if self.duration > 0 and start is not None and time.time() - start > self.duration:
             rospy.signal_shutdown("benchmark_probe: %.0f s measured" % self.duration)
+            return
+        if self.duration > 0 and start is None and time.time() - self.started > self.duration + START_TIMEOUT_S:
+            rospy.logerr("benchmark_probe: no %s in %.0f s; ending the run without figures",
+                         "pose_delta" if self.poses_expected else "camera_info", self.duration + START_TIMEOUT_S)
+            rospy.signal_shutdown("benchmark_probe: nothing to measure")
             return
         cpu = cpu_seconds(self.pid)
         if cpu is None:

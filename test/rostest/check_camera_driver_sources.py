@@ -138,6 +138,7 @@ class CameraDriverSources(unittest.TestCase):
                                 "_camera_info_url:=file://" + cls.calib_1024],
             "device_missing": ["_source:=device", "_device:=/dev/sls_no_such_camera"],
             "images_mono16": ["_source:=images", "_image_dir:=" + cls.mono16_dir, "_rate:=5"],
+            "images_preload": ["_source:=images", "_image_dir:=" + cls.mono16_dir, "_rate:=5", "_preload:=true"],
             "images_window": ["_source:=images", "_image_dir:=" + cls.pattern_dir, "_rate:=5",
                               "_camera_info_url:=file://" + cls.calib_640, "_binning_x:=2", "_binning_y:=2",
                               "_roi_x_offset:=64", "_roi_y_offset:=32", "_roi_width:=320", "_roi_height:=240"],
@@ -162,7 +163,7 @@ class CameraDriverSources(unittest.TestCase):
         while time.time() < deadline:
             if all(len(cls.recorders[n].images) > 0
                    for n in ("video_ok", "images_ok", "images_unreadable", "sim_bad_params", "images_mono16",
-                             "images_window")):
+                             "images_window", "images_preload")):
                 break
             time.sleep(0.2)
         time.sleep(COLLECT_S)
@@ -252,6 +253,14 @@ class CameraDriverSources(unittest.TestCase):
         img = images[0]
         data = np.frombuffer(img.data, np.dtype(np.uint16).newbyteorder(">" if img.is_bigendian else "<"))
         self.assertTrue(np.array_equal(data.reshape(240, 320), self.mono16), "mono16 values changed on the way")
+
+    def test_preloaded_images_are_published_as_read(self):
+        # ~preload: decoded once at start (scripts/benchmark's live runs), then from memory.
+        images, _ = self.check_stream("images_preload", 320, 240, 5.0, encoding="mono16")
+        for img in images[:3]:
+            data = np.frombuffer(img.data, np.dtype(np.uint16).newbyteorder(">" if img.is_bigendian else "<"))
+            self.assertTrue(np.array_equal(data.reshape(240, 320), self.mono16), "preloaded values changed")
+        self.assertEqual(self.errors_of("images_preload"), [])
 
     def test_sensor_window_bins_the_roi(self):
         images, infos = self.check_stream("images_window", 160, 120, 5.0, info_size=(640, 480))
