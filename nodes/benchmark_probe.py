@@ -87,6 +87,8 @@ class Probe:
         self.pid = None
         self.cpu_start = None
         self.cpu_last = None
+        self.infos_at_cpu_start = 0
+        self.infos_at_cpu_last = 0
         self.lock = threading.Lock()
         self.published = {}  # stamp -> wall time of the camera_info
         self.poses = {}  # stamp -> wall time of the pose_delta
@@ -111,12 +113,20 @@ class Probe:
                          "pose_delta" if self.poses_expected else "camera_info", self.duration + START_TIMEOUT_S)
             rospy.signal_shutdown("benchmark_probe: nothing to measure")
             return
+        # The manager's CPU is measured from the first result on (mode pipeline:
+        # the first pose_delta; else the first frame): the start-up before it
+        # (loading, a preloaded folder's decoding, the lock) is not a frame's cost.
+        if start is None:
+            return
         cpu = cpu_seconds(self.pid)
         if cpu is None:
             return
-        if self.cpu_start is None:
-            self.cpu_start = cpu
-        self.cpu_last = cpu
+        with self.lock:
+            if self.cpu_start is None:
+                self.cpu_start = cpu
+                self.infos_at_cpu_start = self.infos
+            self.cpu_last = cpu
+            self.infos_at_cpu_last = self.infos
 
     def info_cb(self, msg):
         with self.lock:
@@ -193,6 +203,9 @@ class Probe:
             "manager": self.manager,
             "manager_pid": self.pid,
             "manager_cpu_s": (self.cpu_last - self.cpu_start) if self.cpu_start is not None else None,
+            # frames published between the two CPU samples (the manager's CPU per frame divides by this)
+            "published_in_cpu_window": (self.infos_at_cpu_last - self.infos_at_cpu_start)
+            if self.cpu_start is not None else None,
             "nodelets": self.nodelets,
         }
         result.update(self.frame_figures())

@@ -34,6 +34,12 @@ def per_frame_ms(probe, frames):
     return 1e3 * cpu / frames if cpu is not None and frames else None
 
 
+def manager_ms(probe):
+    """The manager's CPU per frame published in the probe's CPU window (after the start-up)."""
+    frames = probe.get("published_in_cpu_window")
+    return per_frame_ms(probe, frames if frames is not None else probe.get("published"))
+
+
 def nodelet_ms(probe, name):
     n = probe.get("nodelets", {}).get("/" + name) or probe.get("nodelets", {}).get(name)
     return n.get("ms_per_callback") if n else None
@@ -58,7 +64,7 @@ def sim_table(out):
         inside = load(os.path.join(out, "sim_%d_latency.yaml" % rate)) or {}
         print("| %d Hz | %s | %s | %s | %s | %s | %s | %s | %s |" % (
             rate, p.get("frames"), p.get("dropped"), latency_cells(p), latency_cells(inside),
-            fmt(per_frame_ms(p, p.get("published"))), fmt(nodelet_ms(p, "spot_detector")),
+            fmt(manager_ms(p)), fmt(nodelet_ms(p, "spot_detector")),
             fmt(nodelet_ms(p, "triangulator")), fmt(nodelet_ms(p, "pose_delta"))))
         if mon:
             print("|  | demo monitor: %s published, %s dropped, recall %s, pose %s mm / %s deg RMS |%s" % (
@@ -85,14 +91,14 @@ def replay_tables(out, frames):
         "side_by_side", "pipeline", "pipeline_notex", "fast_only", "baseline_only", "pipeline_30hz",
         "pipeline_60hz")}
     print("## Bag replay (%d frames, 1024 x 1024 bgr8, 10 Hz)\n" % frames)
-    base = per_frame_ms(r["baseline_only"], frames)
+    base = manager_ms(r["baseline_only"])
     print("| manager | CPU ms/frame | of the baseline-only manager |")
     print("|---|---|---|")
     for name, what in (("pipeline", "pipeline (fast detector, Triangulator, PoseDelta with texture)"),
                        ("pipeline_notex", "pipeline, PoseDelta texture off"),
                        ("fast_only", "fast SpotDetector alone"),
                        ("baseline_only", "the study's chain (baseline SpotDetector) alone")):
-        ms = per_frame_ms(r[name], frames)
+        ms = manager_ms(r[name])
         print("| %s | %s | %s |" % (what, fmt(ms), fmt(100 * ms / base, "%.1f %%") if ms and base else "n/a"))
     s = r["side_by_side"]
     fast, study = nodelet_ms(s, "spot_detector"), nodelet_ms(s, "spot_detector_baseline")
@@ -101,7 +107,7 @@ def replay_tables(out, frames):
     print("|---|---|")
     for name in NODELETS[1:]:
         print("| %s | %s |" % (name, fmt(nodelet_ms(s, name))))
-    print("| manager total | %s |" % fmt(per_frame_ms(s, frames)))
+    print("| manager total | %s |" % fmt(manager_ms(s)))
     if fast and study:
         print("\nRatio study's chain / fast SpotDetector on the same frames: %.1fx" % (study / fast))
     print("\nLatency from publication to pose_delta on the bag (pipeline):\n")
@@ -143,13 +149,13 @@ def live_tables(out):
             continue
         inside = load(os.path.join(out, "live_%s_latency.yaml" % name)) or {}
         print("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
-            what, p.get("frames"), p.get("dropped"), p.get("not_published"), fmt(nodelet_ms(p, "spot_detector")),
+            what, p.get("frames") if p.get("pose_deltas") else p.get("published_in_cpu_window"), p.get("dropped"), p.get("not_published"), fmt(nodelet_ms(p, "spot_detector")),
             fmt(nodelet_ms(p, "triangulator")), fmt(nodelet_ms(p, "pose_delta")), fmt(chain_ms(p)),
-            fmt(nodelet_ms(p, "spot_detector_baseline")), fmt(per_frame_ms(p, p.get("published"))),
+            fmt(nodelet_ms(p, "spot_detector_baseline")), fmt(manager_ms(p)),
             latency_cells(p), latency_cells(inside)))
     s = r["side_by_side"]
     chain, study = chain_ms(s), nodelet_ms(s, "spot_detector_baseline")
-    alone = [per_frame_ms(r[n], r[n].get("published")) for n in ("pipeline", "baseline_only")]
+    alone = [manager_ms(r[n]) for n in ("pipeline", "baseline_only")]
     if all(alone):
         print("\nManagers alone (each with its driver): the whole chain's manager %.2f ms/frame, the study's "
               "chain's %.2f ms/frame: %.1f %%." % (alone[0], alone[1], 100 * alone[0] / alone[1]))
