@@ -2,10 +2,15 @@
 // 1024 x 1024 bgr8 image per frame (texture tracking included), simulator
 // frames rendered beforehand so that only the estimator is timed.
 //
-// Usage: benchmark_pose_delta [frames (default 40)] [case (0-3, default all; -1 all)]
+// Usage: benchmark_pose_delta [frames (default 40)] [case (0-5, default all; -1 all)]
 //        [seconds between frames (default 0.1; 0.0333 for 30 Hz)]
+//        [texture_motion_prediction_max_px (default the parameter's; 0 = always the coarse track)]
+// Prints per case the time per frame, the valid frames, the frames whose
+// texture was refined from the motion filter's prediction, and the error of
+// the valid estimates against the simulator's true motion (RMS, mm and deg).
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <ctime>
 #include <iostream>
@@ -43,6 +48,7 @@ int main(int argc, char** argv)
   constexpr int kCases = sizeof(cases) / sizeof(cases[0]);
   const int only = argc > 2 ? std::atoi(argv[2]) : -1;
   const double dt = argc > 3 && std::atof(argv[3]) > 0.0 ? std::atof(argv[3]) : 0.1;
+  const double motion_px = argc > 4 ? std::atof(argv[4]) : PoseDeltaParams().texture_motion_prediction_max_px;
   for (int ci = 0; ci < kCases; ++ci)
   {
     const Case& c = cases[ci];
@@ -54,10 +60,13 @@ int main(int argc, char** argv)
     sc.motion.jitter_rotation_rad = 1.0 * 3.14159265358979323846 / 180.0;
     const Simulator sim(sc);
     std::vector<PoseDeltaInput> inputs;
+    std::vector<Eigen::Isometry3d> truth;
     for (int k = 0; k <= frames; ++k)
     {
       const SimFrame f = sim.render(dt * k);
+      truth.push_back(f.delta);
       PoseDeltaInput in;
+      in.stamp_s = dt * k;
       in.rows = sc.projector.rows;
       in.cols = sc.projector.cols;
       in.points = f.points;
@@ -67,6 +76,7 @@ int main(int argc, char** argv)
     PoseDeltaParams cfg;
     cfg.use_texture = c.use_texture;
     cfg.mode = c.mode;
+    cfg.texture_motion_prediction_max_px = motion_px;
     PoseDeltaEstimator est(cfg);
     est.setCamera(sim.camera());
 
@@ -75,7 +85,8 @@ int main(int argc, char** argv)
     const double lock_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 
     std::vector<double> ms;
-    int valid = 0, features = 0, iterations = 0;
+    int valid = 0, features = 0, iterations = 0, from_motion = 0;
+    double sq_t = 0.0, sq_r = 0.0;
     std::string why;  // the first invalid frame's status
     const std::clock_t c0 = std::clock();
     for (int k = 1; k <= frames; ++k)
@@ -84,6 +95,14 @@ int main(int argc, char** argv)
       const PoseDeltaResult r = est.process(inputs[k]);
       ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
       valid += r.valid ? 1 : 0;
+      from_motion += r.texture_from_motion ? 1 : 0;
+      if (r.valid)
+      {
+        const Eigen::Isometry3d e = truth[static_cast<size_t>(k)].inverse() * r.transform;
+        sq_t += e.translation().squaredNorm();
+        const double angle = Eigen::AngleAxisd(e.rotation()).angle();
+        sq_r += angle * angle;
+      }
       if (!r.valid && why.empty())
         why = r.status;
       features += r.features_used;
@@ -97,8 +116,12 @@ int main(int argc, char** argv)
     std::cout << c.name << ": " << sum / frames << " ms/frame mean, " << ms[ms.size() / 2] << " median, "
               << ms[ms.size() * 95 / 100] << " p95 (wall), " << cpu_ms << " ms CPU; lock " << lock_ms << " ms; "
               << valid << "/" << frames << " valid, " << features / frames << " texture features/frame, "
-              << static_cast<double>(iterations) / frames << " iterations/frame"
-              << (why.empty() ? "" : "; first invalid: " + why) << "\n";
+              << static_cast<double>(iterations) / frames << " iterations/frame, " << from_motion
+              << " from the motion filter";
+    if (valid > 0)
+      std::cout << "; error " << 1e3 * std::sqrt(sq_t / valid) << " mm / "
+                << std::sqrt(sq_r / valid) * 180.0 / 3.14159265358979323846 << " deg RMS";
+    std::cout << (why.empty() ? "" : "; first invalid: " + why) << "\n";
   }
   return 0;
 }

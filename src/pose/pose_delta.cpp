@@ -49,14 +49,16 @@ struct PoseDeltaEstimator::Frame
   int cols = 0;
   std::vector<Eigen::Vector3d> points;
   BeamSurface surface;
-  double dot_spacing_m = 0.0;  // the dots' median spacing (the surface may be built on a denser map)
+  double dot_spacing_m = 0.0;   // the dots' median spacing (the surface may be built on a denser map)
+  double median_depth_m = 0.0;  // the dots' median z (camera frame)
 };
 
 struct PoseDeltaEstimator::TextureMeasurement
 {
   TextureObservations observations;
-  std::string note;        // why the texture is not used ("" when used or not wanted)
-  bool predicted = false;  // the initial guess comes from the coarse texture fit
+  std::string note;          // why the texture is not used ("" when used or not wanted)
+  bool predicted = false;    // the initial guess comes from the coarse texture fit or the motion filter
+  bool from_motion = false;  // ... from the motion filter (no coarse track)
 };
 
 struct PoseDeltaEstimator::FusionFrame
@@ -158,6 +160,17 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
     dots.build(frame.rows, frame.cols, frame.points, config_.max_edge_ratio);
     ref->dot_spacing_m = dots.medianSpacing();
   }
+  {
+    std::vector<double> z;
+    for (const Eigen::Vector3d& p : frame.points)
+      if (p.allFinite() && p.z() > 0.0)
+        z.push_back(p.z());
+    if (!z.empty())
+    {
+      std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
+      ref->median_depth_m = z[z.size() / 2];
+    }
+  }
   texture_->clear();
   // A strobed pair's ambient frame carries the texture without the dots.
   reference_ambient_ = !frame.ambient_image.empty();
@@ -178,6 +191,7 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
                               ref->surface, config_);
   }
   reference_ = std::move(ref);
+  last_tracked_ = 0;  // the first frame after a lock takes the coarse track
   has_reference_ = true;
   lock_pending_ = false;
   last_estimate_ = Eigen::Isometry3d::Identity();
@@ -349,17 +363,30 @@ PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const 
     const Eigen::Isometry3d I = Eigen::Isometry3d::Identity();
     const Eigen::Isometry3d first =
         fraction >= 0.0 ? applyIncrement(v * (frame.ambient_stamp_s - frame.stamp_s), I) : offset;
-    const std::vector<TextureConstraint> coarse = texture_->trackCoarse(first * *initial);
-    if (static_cast<int>(coarse.size()) >= kMinCoarseFeatures)
-      m.predicted = refit(frame, {coarse, camera_.fx, first}, predictionParams(config_, false), initial);
+    // A smooth motion at the frame rate: the filter predicts every feature
+    // within the refinement's reach, and the coarse track is not needed.
+    if (fraction < 0.0 && refineFromMotion(frame, offset, initial, &tracked))
+    {
+      m.predicted = m.from_motion = true;
+      last_tracked_ = tracked.size();
+    }
     else
-      refit(frame, TextureObservations(), geometric, initial);
-    if (fraction >= 0.0)
+    {
+      const std::vector<TextureConstraint> coarse = texture_->trackCoarse(first * *initial);
+      if (static_cast<int>(coarse.size()) >= kMinCoarseFeatures)
+        m.predicted = refit(frame, {coarse, camera_.fx, first}, predictionParams(config_, false), initial);
+      else
+        refit(frame, TextureObservations(), geometric, initial);
+    }
+    if (!m.from_motion && fraction >= 0.0)
       tracked = texture_->refineBetween(
           first * *initial, applyIncrement(v * (frame.ambient_after_stamp_s - frame.stamp_s), I) * *initial,
           frame.ambient_image, frame.ambient_after_image, frame.texture_channel, fraction);
-    else
+    else if (!m.from_motion)
+    {
       tracked = texture_->refineAll(offset * *initial);
+      last_tracked_ = tracked.size();
+    }
   }
   else
   {
@@ -371,6 +398,44 @@ PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const 
   else
     m.observations.constraints = std::move(tracked);
   return m;
+}
+
+// The filter's prediction of this frame's pose, used when its 1-sigma in
+// the image (a feature anywhere in the frame, at the rock's distance) is
+// within texture_motion_prediction_max_px and the refinement from it keeps
+// most of the features the last frame kept; otherwise false and *initial as
+// it was.
+bool PoseDeltaEstimator::refineFromMotion(const PoseDeltaInput& frame, const Eigen::Isometry3d& offset,
+                                          Eigen::Isometry3d* initial, std::vector<TextureConstraint>* tracked) const
+{
+  if (!(config_.texture_motion_prediction_max_px > 0.0) || config_.mode != PoseDeltaMode::kReference ||
+      !(reference_->median_depth_m > 0.0) || last_tracked_ == 0)
+    return false;
+  Eigen::Isometry3d predicted;
+  Matrix6d covariance;
+  if (!motion_.predict(frame.stamp_s, &predicted, &covariance) || !predicted.matrix().allFinite())
+    return false;
+  // A feature's predicted position in the image, 1-sigma (root sum of
+  // squares over the axes) where it is most sensitive: in-plane translation
+  // moves it by f / z per metre, depth by r / z (r the half diagonal in
+  // pixels), tilts by f per radian, roll by r.
+  const double f = camera_.fx, z = reference_->median_depth_m;
+  const double r = 0.5 * std::hypot(camera_.width, camera_.height);
+  const Matrix6d& C = covariance;
+  const double var_px = (f / z) * (f / z) * (C(0, 0) + C(1, 1)) + (r / z) * (r / z) * C(2, 2) +
+                        f * f * (C(3, 3) + C(4, 4)) + r * r * C(5, 5);
+  const double sigma_px = std::sqrt(std::max(0.0, var_px));
+  if (!(sigma_px <= config_.texture_motion_prediction_max_px))
+    return false;
+  std::vector<TextureConstraint> refined = texture_->refineAll(offset * predicted);
+  // A prediction off by more than the refinement's reach loses features.
+  constexpr double kKeptFraction = 0.8;
+  if (static_cast<double>(refined.size()) < kKeptFraction * static_cast<double>(last_tracked_) ||
+      static_cast<int>(refined.size()) < config_.texture_min_features)
+    return false;
+  *initial = predicted;
+  *tracked = std::move(refined);
+  return true;
 }
 
 RegistrationOutput PoseDeltaEstimator::registerFrame(const PoseDeltaInput& frame, const TextureMeasurement& texture,
@@ -394,6 +459,7 @@ void PoseDeltaEstimator::report(const RegistrationOutput& reg, const TextureMeas
   result->points_used = reg.points_used;
   result->features_used = reg.features_used;
   result->iterations = reg.iterations;
+  result->texture_from_motion = texture.from_motion;
   result->sigma_geometry_m = reg.sigma_geometry_m;
   result->sigma_texture_px = texture.observations.constraints.empty() ? 0.0 : reg.sigma_texture_px;
   result->rms_residual_m = reg.rms_geometry_m;
@@ -543,8 +609,8 @@ void PoseDeltaEstimator::fuseReference(bool last)
       if (config_.symmetric)
         current.build(reference_->rows, reference_->cols, f.points, config_.max_edge_ratio);
       const RegistrationOutput reg =
-          registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current : nullptr,
-                            f.points, f.texture, f.pose, config_);
+          registerToSurface(reference_->surface, reference_->points, config_.symmetric ? &current : nullptr, f.points,
+                            f.texture, f.pose, config_);
       if (reg.points_used >= config_.min_points && reg.transform.matrix().allFinite())
         f.pose = reg.transform;
     }

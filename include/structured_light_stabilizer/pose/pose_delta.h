@@ -110,6 +110,7 @@ struct PoseDeltaResult
   int iterations = 0;
   bool valid = false;
   bool locked_now = false;             // this frame became the reference
+  bool texture_from_motion = false;    // the texture was refined from the motion filter's prediction
   std::array<bool, 6> unobservable{};  // per axis, sigma beyond the validity bound
   std::string status;
 };
@@ -149,6 +150,10 @@ private:
   std::string referenceFor(const PoseDeltaInput& frame, PoseDeltaResult* result);
   // Image -> texture constraints; *initial becomes the best prediction of the pose.
   TextureMeasurement measureTexture(const PoseDeltaInput& frame, Eigen::Isometry3d* initial);
+  // The refinement from the motion filter's prediction, when it is sure
+  // enough (texture_motion_prediction_max_px) and keeps the features.
+  bool refineFromMotion(const PoseDeltaInput& frame, const Eigen::Isometry3d& offset, Eigen::Isometry3d* initial,
+                        std::vector<TextureConstraint>* tracked) const;
   RegistrationOutput registerFrame(const PoseDeltaInput& frame, const TextureMeasurement& texture,
                                    const Eigen::Isometry3d& initial) const;
   // Covariance (chained in frame_to_frame), per-axis observability, validity and status.
@@ -179,8 +184,8 @@ private:
   // The lock period (reference_fusion_frames): a valid frame's points, pose
   // and texture kept; with enough of them the reference surface is fitted
   // to all their points and their poses solved again, in turn.
-  void collectForFusion(const PoseDeltaInput& frame, const TextureMeasurement& texture,
-                        const RegistrationOutput& reg, const PoseDeltaResult& result);
+  void collectForFusion(const PoseDeltaInput& frame, const TextureMeasurement& texture, const RegistrationOutput& reg,
+                        const PoseDeltaResult& result);
   void fuseReference(bool last);
 
   PoseDeltaParams config_;
@@ -201,6 +206,7 @@ private:
   struct FusionFrame;
   std::vector<FusionFrame> fusion_;  // the lock period's frames so far
   bool fused_ = false;               // the reference surface was refined since the lock
+  size_t last_tracked_ = 0;          // texture features refined on the last frame with texture
 };
 
 }  // namespace structured_light_stabilizer
