@@ -33,6 +33,7 @@ Parameters: ~manager (default stabilizer_manager), ~out_file (YAML path),
 ~pose_delta false after the first frame; then the node writes and exits,
 which ends a launch where it is required; 0: at shutdown only).
 """
+import math
 import os
 import threading
 import time
@@ -168,7 +169,9 @@ class Probe:
             dropped_at.sort()
         ticks = {}
         if self.rate > 0 and self.first_pose is not None:
-            n = int(round(self.rate * (end - first)))
+            # The ticks due after the first pose_delta and before the end (floor:
+            # the tick after the end is not yet due; within one frame of the truth).
+            n = int(math.floor(self.rate * (end - first)))
             ticks = {"ticks": n, "not_published": max(0, n - self.published_since_first)}
         return dict(ticks, **{
             "published": self.infos,

@@ -186,6 +186,31 @@ def stage_ratios(out):
     return tracked, full, pose
 
 
+def pose_motion_table(out):
+    """benchmark_pose_delta at 30 Hz with and without the motion filter's prediction."""
+    rows = {}
+    for px, what in (("default", "from the motion filter's prediction (default)"), ("0", "coarse track always")):
+        try:
+            with open(os.path.join(out, "benchmark_pose_delta_30hz_%s.txt" % px)) as f:
+                for line in f:
+                    m = re.match(r"(.+?)\s*: .*?([0-9.]+) ms CPU;.*? (\d+)/(\d+) valid,.*? (\d+) from the motion "
+                                 r"filter(?:; error ([0-9.e-]+) mm / ([0-9.e-]+) deg RMS)?", line)
+                    if m:
+                        rows.setdefault(m.group(1).strip(), []).append((what, m.groups()[1:]))
+        except OSError:
+            pass
+    if not rows:
+        return
+    print("\n## PoseDelta at 30 Hz: texture from the motion filter's prediction or the coarse track\n")
+    print("`benchmark_pose_delta 60 <case> 0.0333 [0]` (one core; error against the simulator's motion):\n")
+    print("| case | texture refined | ms CPU/frame | valid | from the filter | error mm RMS | deg RMS |")
+    print("|---|---|---|---|---|---|---|")
+    for case, runs in rows.items():
+        for what, (ms, valid, frames, motion, err_mm, err_deg) in runs:
+            print("| %s | %s | %s | %s/%s | %s | %s | %s |" % (case, what, ms, valid, frames, motion, err_mm or "n/a",
+                                                             err_deg or "n/a"))
+
+
 def ratios_line(out, chain_pct, run120):
     tracked, full, pose = stage_ratios(out)
     texture = None
@@ -212,6 +237,7 @@ def main():
     sim_table(out)
     replay_tables(out, frames)
     chain_pct, run120 = live_tables(out)
+    pose_motion_table(out)
     ratios_line(out, chain_pct, run120)
 
 
