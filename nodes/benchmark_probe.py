@@ -73,6 +73,23 @@ def cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / float(os.sysconf("SC_CLK_TCK"))
 
 
+def thread_cpu_seconds(pid):
+    """{thread id: user + system CPU seconds} of a process's threads ({} once it is gone)."""
+    out = {}
+    try:
+        tids = os.listdir("/proc/%d/task" % pid)
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open("/proc/%d/task/%s/stat" % (pid, tid)) as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        out[int(tid)] = (int(fields[11]) + int(fields[12])) / float(os.sysconf("SC_CLK_TCK"))
+    return out
+
+
 class Probe:
     def __init__(self):
         self.manager = rospy.resolve_name(rospy.get_param("~manager", "stabilizer_manager"))
@@ -89,6 +106,8 @@ class Probe:
         self.cpu_start = None
         self.cpu_last = None
         self.infos_at_cpu_start = 0
+        self.threads_start = {}
+        self.threads_last = {}
         self.infos_at_cpu_last = 0
         self.lock = threading.Lock()
         self.published = {}  # stamp -> wall time of the camera_info
@@ -122,12 +141,15 @@ class Probe:
         cpu = cpu_seconds(self.pid)
         if cpu is None:
             return
+        threads = thread_cpu_seconds(self.pid)
         with self.lock:
             if self.cpu_start is None:
                 self.cpu_start = cpu
                 self.infos_at_cpu_start = self.infos
+                self.threads_start = threads
             self.cpu_last = cpu
             self.infos_at_cpu_last = self.infos
+            self.threads_last = threads
 
     def info_cb(self, msg):
         with self.lock:
@@ -209,6 +231,11 @@ class Probe:
             # frames published between the two CPU samples (the manager's CPU per frame divides by this)
             "published_in_cpu_window": (self.infos_at_cpu_last - self.infos_at_cpu_start)
             if self.cpu_start is not None else None,
+            # The manager's busiest threads over the same window, CPU seconds (work a callback hands to
+            # other threads, e.g. OpenCV's parallel_for pool, shows here and not in its callback CPU).
+            "busiest_threads_cpu_s": sorted(
+                (round(t - self.threads_start[tid], 3) for tid, t in self.threads_last.items()
+                 if tid in self.threads_start), reverse=True)[:6],
             "nodelets": self.nodelets,
         }
         result.update(self.frame_figures())

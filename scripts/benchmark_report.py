@@ -124,6 +124,7 @@ def replay_tables(out, frames):
 LIVE_RUNS = (("side_by_side", "whole chain + the study's chain, same frames, 30 Hz"),
              ("pipeline", "whole chain alone, 30 Hz"),
              ("baseline_only", "the study's chain alone, 30 Hz"),
+             ("driver_only", "the driver alone, 30 Hz"),
              ("pipeline_120hz", "whole chain alone, 120 Hz"))
 
 
@@ -155,11 +156,24 @@ def live_tables(out):
             latency_cells(p), latency_cells(inside)))
     s = r["side_by_side"]
     chain, study = chain_ms(s), nodelet_ms(s, "spot_detector_baseline")
-    alone = [manager_ms(r[n]) for n in ("pipeline", "baseline_only")]
+    if chain and study:
+        print("\nCallbacks on the same frames: the whole chain %.2f ms, the study's chain %.2f ms: %.1f %%. The "
+              "study's chain runs part of its OpenCV work on OpenCV's worker threads, which its callback's thread "
+              "CPU does not count: the managers below count every thread." % (chain, study, 100 * chain / study))
+    alone = [manager_ms(r[n]) for n in ("pipeline", "baseline_only", "driver_only")]
+    net = None
     if all(alone):
-        print("\nManagers alone (each with its driver): the whole chain's manager %.2f ms/frame, the study's "
-              "chain's %.2f ms/frame: %.1f %%." % (alone[0], alone[1], 100 * alone[0] / alone[1]))
-    return (100 * chain / study if chain and study else None), r["pipeline_120hz"]
+        net = 100 * (alone[0] - alone[2]) / (alone[1] - alone[2])
+        print("\nManagers alone: the whole chain's %.2f ms/frame, the study's chain's %.2f, the driver's alone %.2f; "
+              "without the driver, the whole chain is %.1f %% of the study's chain." % (alone[0], alone[1], alone[2],
+                                                                                       net))
+        for n in ("pipeline", "baseline_only"):
+            frames = r[n].get("published_in_cpu_window")
+            busiest = r[n].get("busiest_threads_cpu_s")
+            if frames and busiest:
+                print("\nBusiest threads of the manager, %s (ms/frame): %s." % (
+                    dict(LIVE_RUNS)[n], ", ".join("%.2f" % (1e3 * t / frames) for t in busiest)))
+    return net, r["pipeline_120hz"]
 
 
 def stage_ratios(out):
