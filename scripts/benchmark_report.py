@@ -191,8 +191,9 @@ def stage_ratios(out):
     try:
         with open(os.path.join(out, "benchmark_pose_delta.txt")) as f:
             for line in f:
-                m = re.match(r"rougher rock [0-9.]+ m, texture (on|off)\s*:.*?([0-9.]+) ms CPU;.*? (\d+)/(\d+) valid",
-                             line)
+                # The yardstick: the rock where texture off is valid (denser beams, benchmark_pose_delta).
+                m = re.match(r"rock [0-9.]+ m, 20x20 beams, texture (on|off)\s*:.*?([0-9.]+) ms CPU;.*? (\d+)/(\d+) "
+                             r"valid", line)
                 if m:
                     pose[m.group(1)] = (float(m.group(2)), int(m.group(3)), int(m.group(4)))
     except OSError:
@@ -231,8 +232,8 @@ def ratios_line(out, chain_pct, run120):
     if "on" in pose and "off" in pose:
         texture = pose["on"][0] / pose["off"][0]
         if pose["off"][1] < pose["off"][2]:
-            print("\nPoseDelta's texture ratio: texture off is valid in %d of %d frames on the rougher rock "
-                  "(benchmark_pose_delta): the yardstick is not a valid estimate there." % pose["off"][1:])
+            print("\nPoseDelta's texture ratio: texture off is valid in only %d of %d frames on the 20 x 20 beam "
+                  "rock (benchmark_pose_delta)." % pose["off"][1:])
     dropped = ticks = None
     if run120:
         ticks = run120.get("ticks")
