@@ -63,31 +63,29 @@ def find_pid(name):
         return None
 
 
-def cpu_seconds(pid):
-    """User + system CPU seconds of a process (None once it is gone)."""
+def stat_cpu_seconds(path):
+    """User + system CPU seconds from a /proc stat file (None once it is gone)."""
     try:
-        with open("/proc/%d/stat" % pid) as f:
+        with open(path) as f:
             fields = f.read().rsplit(")", 1)[1].split()
     except OSError:
         return None
     return (int(fields[11]) + int(fields[12])) / float(os.sysconf("SC_CLK_TCK"))
 
 
+def cpu_seconds(pid):
+    """User + system CPU seconds of a process (None once it is gone)."""
+    return stat_cpu_seconds("/proc/%d/stat" % pid)
+
+
 def thread_cpu_seconds(pid):
     """{thread id: user + system CPU seconds} of a process's threads ({} once it is gone)."""
-    out = {}
     try:
         tids = os.listdir("/proc/%d/task" % pid)
     except OSError:
-        return out
-    for tid in tids:
-        try:
-            with open("/proc/%d/task/%s/stat" % (pid, tid)) as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        out[int(tid)] = (int(fields[11]) + int(fields[12])) / float(os.sysconf("SC_CLK_TCK"))
-    return out
+        return {}
+    cpu = {int(tid): stat_cpu_seconds("/proc/%d/task/%s/stat" % (pid, tid)) for tid in tids}
+    return {tid: s for tid, s in cpu.items() if s is not None}
 
 
 class Probe:

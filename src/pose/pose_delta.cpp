@@ -165,11 +165,7 @@ void PoseDeltaEstimator::lock(const PoseDeltaInput& frame)
     for (const Eigen::Vector3d& p : frame.points)
       if (p.allFinite() && p.z() > 0.0)
         z.push_back(p.z());
-    if (!z.empty())
-    {
-      std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
-      ref->median_depth_m = z[z.size() / 2];
-    }
+    ref->median_depth_m = detail::medianInPlace(z.begin(), z.end());  // 0 without points
   }
   texture_->clear();
   // A strobed pair's ambient frame carries the texture without the dots.
@@ -366,10 +362,7 @@ PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const 
     // A smooth motion at the frame rate: the filter predicts every feature
     // within the refinement's reach, and the coarse track is not needed.
     if (fraction < 0.0 && refineFromMotion(frame, offset, initial, &tracked))
-    {
       m.predicted = m.from_motion = true;
-      last_tracked_ = tracked.size();
-    }
     else
     {
       const std::vector<TextureConstraint> coarse = texture_->trackCoarse(first * *initial);
@@ -377,16 +370,15 @@ PoseDeltaEstimator::TextureMeasurement PoseDeltaEstimator::measureTexture(const 
         m.predicted = refit(frame, {coarse, camera_.fx, first}, predictionParams(config_, false), initial);
       else
         refit(frame, TextureObservations(), geometric, initial);
+      if (fraction >= 0.0)
+        tracked = texture_->refineBetween(
+            first * *initial, applyIncrement(v * (frame.ambient_after_stamp_s - frame.stamp_s), I) * *initial,
+            frame.ambient_image, frame.ambient_after_image, frame.texture_channel, fraction);
+      else
+        tracked = texture_->refineAll(offset * *initial);
     }
-    if (!m.from_motion && fraction >= 0.0)
-      tracked = texture_->refineBetween(
-          first * *initial, applyIncrement(v * (frame.ambient_after_stamp_s - frame.stamp_s), I) * *initial,
-          frame.ambient_image, frame.ambient_after_image, frame.texture_channel, fraction);
-    else if (!m.from_motion)
-    {
-      tracked = texture_->refineAll(offset * *initial);
+    if (fraction < 0.0)
       last_tracked_ = tracked.size();
-    }
   }
   else
   {
