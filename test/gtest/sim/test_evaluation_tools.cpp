@@ -1,9 +1,9 @@
 // The evaluation tools run in-process on small cases, so that none of them
 // rots: evaluate_pose_delta (with its experiments' flags), evaluate_daylight
 // (with --param and the scene flags), design_rig (with the beam x focus
-// table). Each run's exit status, its figures against loose bounds (the
-// tools' full figures are the docs', each with its command), and a bad
-// usage refused with status 2 naming the problem. Seeds 11-12: held out.
+// table), evaluate_photos (on a rendered photo and its label file). Each run's exit status, its figures against loose
+// bounds (the tools' full figures are the docs', each with its command), and a bad usage refused with status 2 naming
+// the problem. Seeds 11-12: held out.
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -17,9 +17,12 @@
 #include <unistd.h>
 
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "cli/design_rig_cli.h"
 #include "cli/evaluate_daylight_cli.h"
+#include "cli/evaluate_photos_cli.h"
 #include "cli/evaluate_pose_delta_cli.h"
 
 using namespace structured_light_stabilizer;
@@ -181,4 +184,53 @@ TEST(EvaluationTools, DesignRigWithTheBeamTable)
   EXPECT_LT(far_floor[0], far_floor[1]);
 
   EXPECT_EQ(run(designRigMain, {"--beams", "2"}).status, 2);
+}
+
+// A mono8 "photo" of 12 Gaussian dots (sigma 1.5 px, 90 DN over 20 DN, read
+// noise 1.5 DN) with its label file, projector_dots and an ignored
+// rectangle over a 13th dot: every labelled dot found, nothing else counted.
+TEST(EvaluationTools, EvaluatePhotosOnARenderedPhotoAndItsLabels)
+{
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("sls_photos_" + std::to_string(getpid()));
+  std::filesystem::create_directories(dir / "labels");
+  cv::Mat1f light(160, 200, 20.0f);
+  std::ostringstream dots;
+  std::vector<cv::Point2d> centres;
+  for (int j = 0; j < 3; ++j)
+    for (int i = 0; i < 4; ++i)
+      centres.emplace_back(30.3 + 45.0 * i + 0.1 * j, 30.6 + 45.0 * j - 0.2 * i);
+  centres.emplace_back(185.0, 145.0);  // under the ignored rectangle
+  for (const cv::Point2d& c : centres)
+    for (int y = 0; y < light.rows; ++y)
+      for (int x = 0; x < light.cols; ++x)
+        light(y, x) += 90.0f * static_cast<float>(std::exp(-((x - c.x) * (x - c.x) + (y - c.y) * (y - c.y)) / 4.5));
+  cv::Mat1f noise(light.size());
+  cv::RNG rng(11);
+  rng.fill(noise, cv::RNG::NORMAL, 0.0, 1.5);
+  cv::Mat image;
+  cv::Mat1f(light + noise).convertTo(image, CV_8U);
+  ASSERT_TRUE(cv::imwrite((dir / "dots.png").string(), image));
+  {
+    std::ofstream f(dir / "labels" / "rendered.yaml");
+    f << "image: dots.png\nencoding: mono8\nprojector_color: nir\nhalf: heldout\nprojector_dots: 12\n"
+         "ignore:\n- [175, 135, 25, 25]\ndots:\n";
+    for (size_t k = 0; k + 1 < centres.size(); ++k)
+      f << "  - [" << centres[k].x << ", " << centres[k].y << "]\n";
+  }
+  const std::vector<std::string> base{"--photos", dir.string(), "--labels", (dir / "labels").string()};
+  const ToolRun r = run(evaluatePhotosMain, base);
+  std::cout << r.out;
+  EXPECT_EQ(r.status, 0) << r.err;
+  EXPECT_EQ(figure(r.out, "pooled:", "recall "), 1.0) << r.out;
+  EXPECT_EQ(figure(r.out, "pooled:", "precision "), 1.0) << r.out;
+  EXPECT_EQ(figure(r.out, "pooled:", "images, "), 12.0) << r.out;  // labels counted outside the ignored part
+  std::vector<std::string> tuning = base;
+  tuning.insert(tuning.end(), {"--half", "tuning"});
+  EXPECT_NE(run(evaluatePhotosMain, tuning).out.find("pooled: 0 images"), std::string::npos);
+
+  std::vector<std::string> bad = base;
+  bad.insert(bad.end(), {"--half", "most"});
+  EXPECT_EQ(run(evaluatePhotosMain, bad).status, 2);
+  EXPECT_EQ(run(evaluatePhotosMain, {"--photos", dir.string(), "--labels", (dir / "none").string()}).status, 2);
+  std::filesystem::remove_all(dir);
 }
