@@ -486,8 +486,8 @@ void FramePlanes::buildIntensityMaps(const FastParams& p)
       const double n = std::max(16.0 * 0.29, static_cast<double>(std::min(noise.at<int>(y, x), 16 * 255)));
       block_sigma_.at<float>(y, x) = static_cast<float>(n);
       block_threshold_.at<int>(y, x) = std::max(floor16, static_cast<int>(std::ceil(p.intensity_snr * n)));
-      // A blob's peak: peak_snr local sigmas over the background.
-      block_peak_.at<int>(y, x) = std::max(16, static_cast<int>(std::ceil(p.peak_snr * n)));
+      // A blob's peak: intensity_peak_snr local sigmas over the background.
+      block_peak_.at<int>(y, x) = std::max(16, static_cast<int>(std::ceil(p.intensity_peak_snr * n)));
     }
 }
 
