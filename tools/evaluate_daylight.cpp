@@ -13,7 +13,7 @@
 //                     [--full-resolution-tracking 0|1] [--output ENCODING] [--output-bits N]
 //                     [--unrounded 0|1] [--true-ambient 0|1] [--focus M] [--rock-subsample N]
 //                     [--camera-rate HZ] [--extrapolate 0|1] [--difference 0|1 [--normalise 0|1]]
-//                     [--vignetting 0|1] [--grid RxC] [--noise-free 0|1] [--relief M]
+//                     [--vignetting 0|1] [--grid RxC] [--noise-free 0|1] [--relief M] [--colour-texture A]
 //                     [--param [detector.|triangulator.|pose.]name=value]...
 //
 // The camera: the rig's as designed (its output_bits: the recommended rig's

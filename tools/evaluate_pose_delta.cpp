@@ -15,7 +15,7 @@
 //   --true-surface box|image   the reference surface from the simulator's rock at the lock
 //                              (over the dots' box, or the whole image: the texture's depths too)
 //   --projector-off-lock 0|1   the lock's texture from a projector-off exposure of its instant
-//   --vignetting 0|1, --grid RxC, --noise-free 0|1, --relief M   the scene (support/scene_ablations.h)
+//   --vignetting 0|1, --grid RxC, --noise-free 0|1, --relief M, --colour-texture A   the scene (support/scene_ablations.h)
 // Scenes: weak_texture, missing_dots, worst_snr, flat_textured, rough, textureless,
 // mono, bgr16, bgr16_as_bgr8, strobed, strobed_one_side.
 #include <iostream>

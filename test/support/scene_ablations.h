@@ -8,6 +8,10 @@
 //                      wider or narrower pattern)
 //   --noise-free 0|1   no shot nor read noise (quantisation stays)
 //   --relief M         the rock's peak-to-peak relief (m; 0: a flat rock)
+//   --colour-texture A the rock's green albedo varies against its red by
+//                      about +-A over 1-3 cm (RockParams::fine_texture_green;
+//                      on a rock without fine texture: period 2 cm, colour
+//                      only)
 #pragma once
 
 #include <cstdio>
@@ -21,12 +25,13 @@ namespace sls_test
 
 struct SceneAblations
 {
-  int vignetting = -1;   // -1: the scene's; 0 off; 1 on
-  int grid_rows = 0;     // 0: the scene's grid
+  int vignetting = -1;  // -1: the scene's; 0 off; 1 on
+  int grid_rows = 0;    // 0: the scene's grid
   int grid_cols = 0;
-  double pitch_rad = 0;  // 0: the scene's (or --grid's)
-  int noise_free = -1;   // -1: the scene's; 1: no shot nor read noise
-  double relief_m = -1;  // < 0: the scene's
+  double pitch_rad = 0;        // 0: the scene's (or --grid's)
+  int noise_free = -1;         // -1: the scene's; 1: no shot nor read noise
+  double relief_m = -1;        // < 0: the scene's
+  double colour_texture = -1;  // < 0: the scene's
 
   // Reads `flag value` when it is one of the flags above: "" when read, "?"
   // when the flag is none of them, else why the value is bad.
@@ -44,6 +49,13 @@ struct SceneAblations
     {
       relief_m = std::strtod(value.c_str(), &end);
       return *end == '\0' && relief_m >= 0.0 ? "" : "--relief takes metres >= 0, not '" + value + "'";
+    }
+    if (flag == "--colour-texture")
+    {
+      colour_texture = std::strtod(value.c_str(), &end);
+      return *end == '\0' && colour_texture >= 0.0 && colour_texture <= 0.9
+                 ? ""
+                 : "--colour-texture takes 0-0.9, not '" + value + "'";
     }
     if (flag == "--pitch-mrad")
     {
@@ -85,6 +97,15 @@ struct SceneAblations
     }
     if (relief_m >= 0.0)
       p->rock.relief_m = relief_m;
+    if (colour_texture >= 0.0)
+    {
+      if (p->rock.fine_texture_period_m == 0.0)
+      {
+        p->rock.fine_texture_period_m = 0.02;
+        p->rock.fine_texture_amplitude = 0.0;  // the colour alone
+      }
+      p->rock.fine_texture_green = colour_texture;
+    }
   }
 
   // What was changed, for the tools' headers ("" when nothing).
@@ -101,6 +122,8 @@ struct SceneAblations
       d += " noise-free;";
     if (relief_m >= 0.0)
       d += " relief " + std::to_string(relief_m) + " m;";
+    if (colour_texture >= 0.0)
+      d += " colour texture " + std::to_string(colour_texture) + ";";
     return d;
   }
 };

@@ -161,13 +161,15 @@ void RockSurface::computeBlockBounds()
 // Fine texture (grain, lichen, weathering at 1-3 cm): a factor per channel
 // around 1, mostly brightness (all channels alike) with a quarter of the
 // amplitude as hue (R against B), as a rock's grains differ more in
-// brightness than in colour. Octaves of period / 2 and period / 4 (value
-// noise features of size s repeat over about 2 s).
+// brightness than in colour; optionally green against red
+// (fine_texture_green: colour texture). Octaves of period / 2 and period / 4
+// (value noise features of size s repeat over about 2 s).
 struct FineTexture
 {
   explicit FineTexture(const RockParams& rc)
     : on(rc.fine_texture_period_m > 0.0),
       amplitude(rc.fine_texture_amplitude),
+      green(rc.fine_texture_green),
       seed(rc.seed),
       octaves({{0.5 * rc.fine_texture_period_m, 1.0}, {0.25 * rc.fine_texture_period_m, 0.5}})
   {
@@ -186,10 +188,13 @@ struct FineTexture
     f[0] = (1.0 + brightness) * (1.0 - hue);
     f[1] = 1.0 + brightness;
     f[2] = (1.0 + brightness) * (1.0 + hue);
+    if (green > 0.0)
+      f[1] *= 1.0 + green * std::tanh(2.5 * fractalNoise(x, y, seed ^ 0x6A09E667u, octaves));
   }
 
   bool on;
   double amplitude;
+  double green;
   uint32_t seed;
   NoiseOctaves octaves;
 };

@@ -71,6 +71,8 @@ void checkRock(const RockParams& rock, std::ostringstream& why)
     why << "fine_texture_period_m " << rock.fine_texture_period_m << " must be 0 (off) or within [0.004, 1]; ";
   if (!(rock.fine_texture_amplitude >= 0.0 && rock.fine_texture_amplitude <= 0.9))
     why << "fine_texture_amplitude " << rock.fine_texture_amplitude << " is outside [0, 0.9]; ";
+  if (!(rock.fine_texture_green >= 0.0 && rock.fine_texture_green <= 0.9))
+    why << "fine_texture_green " << rock.fine_texture_green << " is outside [0, 0.9]; ";
   if (!(rock.nir_to_red_ratio > 0.0 && rock.nir_to_red_ratio <= 5.0))
     why << "nir_to_red_ratio " << rock.nir_to_red_ratio << " is outside (0, 5]; ";
   if (!(std::abs(rock.tilt_x_rad) < 1.2 && std::abs(rock.tilt_y_rad) < 1.2))

@@ -76,6 +76,10 @@ struct RockParams
   // (period / 8, >= 2 mm): more memory and build time when on.
   double fine_texture_period_m = 0.0;
   double fine_texture_amplitude = 0.25;
+  // Colour texture at the same scale: the green albedo's own variation
+  // against the red (0.15: green/red within about +-15 % over 1-3 cm), so
+  // that the red channel no longer predicts the green under a dot. 0 = off.
+  double fine_texture_green = 0.0;
   // Reflectance at 850 nm over the red reflectance (an NIR projector's dots):
   // iron-bearing rock reflects more in the near infrared than in the red.
   double nir_to_red_ratio = 1.25;
