@@ -63,6 +63,23 @@ double figure(const std::string& text, const std::string& line_start, const std:
   return std::nan("");
 }
 
+// evaluate_daylight with the recommended rig at 1.5 m, held-out seed 11, 4
+// dot frames, plus `extra`: its pooled centroid against the hit point (px),
+// and its output in *out when given.
+double daylightCentroid(const std::vector<std::string>& extra, std::string* out = nullptr)
+{
+  std::vector<std::string> args{"--rig",      std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_daylight.yaml",
+                                "--distance", "1.5",
+                                "--seeds",    "11",
+                                "--frames",   "4"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  const ToolRun r = run(evaluateDaylightMain, args);
+  EXPECT_EQ(r.status, 0) << r.err;
+  if (out)
+    *out = r.out;
+  return figure(r.out, "all:", "centroid ");
+}
+
 }  // namespace
 
 // The rough rock through the chain with a true reference surface over the
@@ -133,22 +150,9 @@ TEST(EvaluationTools, EvaluateDaylightWithParamsAndSceneFlags)
 // within the 0.03 px goal; with it at least 1.5 x that; flat within 0.02.
 TEST(EvaluationTools, EvaluateDaylightIsolatesTheNormalisationOnASmoothRock)
 {
-  const std::vector<std::string> base{"--rig",      std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_daylight.yaml",
-                                      "--distance", "1.5",
-                                      "--seeds",    "11",
-                                      "--frames",   "4",
-                                      "--albedo",   "0.2"};
-  auto centroid = [&](const std::vector<std::string>& extra)
-  {
-    std::vector<std::string> args = base;
-    args.insert(args.end(), extra.begin(), extra.end());
-    const ToolRun r = run(evaluateDaylightMain, args);
-    EXPECT_EQ(r.status, 0) << r.err;
-    return figure(r.out, "all:", "centroid ");
-  };
-  const double on = centroid({});
-  const double off = centroid({"--param", "normalise_albedo=0"});
-  const double flat = centroid({"--relief", "0"});
+  const double on = daylightCentroid({"--albedo", "0.2"});
+  const double off = daylightCentroid({"--albedo", "0.2", "--param", "normalise_albedo=0"});
+  const double flat = daylightCentroid({"--albedo", "0.2", "--relief", "0"});
   std::cout << "[ MEASURE ] evaluate_daylight smooth rock 1.5 m seed 11: centroid against the hit point " << on
             << " px normalised, " << off << " px without, " << flat << " px normalised on a flat rock\n";
   EXPECT_LE(off, 0.03);
@@ -165,23 +169,11 @@ TEST(EvaluationTools, EvaluateDaylightIsolatesTheNormalisationOnASmoothRock)
 // the centroid by sigma^2 times its log-gradient: 0.117 against 0.032 px.
 TEST(EvaluationTools, EvaluateDaylightIsolatesColourTexture)
 {
-  const std::vector<std::string> base{"--rig",      std::string(SLS_TEST_DATA_DIR) + "/../../config/rig_daylight.yaml",
-                                      "--distance", "1.5",
-                                      "--seeds",    "11",
-                                      "--frames",   "4"};
-  auto centroid = [&](const std::vector<std::string>& extra)
-  {
-    std::vector<std::string> args = base;
-    args.insert(args.end(), extra.begin(), extra.end());
-    const ToolRun r = run(evaluateDaylightMain, args);
-    EXPECT_EQ(r.status, 0) << r.err;
-    if (std::find(extra.begin(), extra.end(), "--colour-texture") != extra.end())
-      EXPECT_NE(r.out.find("colour texture 0.15"), std::string::npos) << r.out;
-    return figure(r.out, "all:", "centroid ");
-  };
-  const double strobed = centroid({"--colour-texture", "0.15"});
-  const double one_frame = centroid({"--strobe", "0", "--ratio", "8"});
-  const double one_frame_colour = centroid({"--strobe", "0", "--ratio", "8", "--colour-texture", "0.15"});
+  std::string out;
+  const double strobed = daylightCentroid({"--colour-texture", "0.15"}, &out);
+  EXPECT_NE(out.find("colour texture 0.15"), std::string::npos) << out;
+  const double one_frame = daylightCentroid({"--strobe", "0", "--ratio", "8"});
+  const double one_frame_colour = daylightCentroid({"--strobe", "0", "--ratio", "8", "--colour-texture", "0.15"});
   std::cout << "[ MEASURE ] evaluate_daylight colour texture 0.15, 1.5 m seed 11: strobed " << strobed
             << " px; one frame " << one_frame_colour << " px (" << one_frame << " px without it)\n";
   EXPECT_LE(strobed, 0.05);
