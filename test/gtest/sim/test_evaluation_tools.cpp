@@ -4,7 +4,6 @@
 // table), evaluate_photos (on a rendered photo and its label file). Each run's exit status, its figures against loose
 // bounds (the tools' full figures are the docs', each with its command), and a bad usage refused with status 2 naming
 // the problem. Seeds 11-12: held out.
-#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
