@@ -65,6 +65,8 @@ private:
   BlobLabeller labeller_;
   CoarseCandidates coarse_;
   BlobSplitter splitter_;
+  ClippedCoreFinder core_finder_;
+  std::vector<ClippedCore> cores_;
   std::vector<Candidate> candidates_;
   double threshold_ms_ = 0;
   // The matched path's statistics of the last whole frame (regions use them;
@@ -295,6 +297,36 @@ void addSpotDebug(const Spots& spots, const std::vector<SpotFit>& fits, SpotDete
   }
 }
 
+// Stage 3c's dots (ClippedCoreFinder: cores on which no Gaussian fit
+// ended). The spots on a core's halo (within 2 r + 2 px: pieces of the ring
+// that the colour score saw around the white core) give way to it.
+void addClippedCores(const std::vector<ClippedCore>& cores, Spots* spots, std::vector<SpotFit>* fits)
+{
+  for (const ClippedCore& c : cores)
+  {
+    for (size_t i = spots->size(); i-- > 0;)
+      if (std::hypot((*spots)[i].x - c.x, (*spots)[i].y - c.y) <= 2 * c.radius + 2)
+      {
+        spots->erase(spots->begin() + static_cast<long>(i));
+        fits->erase(fits->begin() + static_cast<long>(i));
+      }
+    Spot s;
+    s.x = c.x;
+    s.y = c.y;
+    s.area = static_cast<float>(c.pixels);
+    s.intensity = static_cast<float>(c.pixels);
+    SpotFit f;
+    f.x = c.x;
+    f.y = c.y;
+    f.sigma = f.sigma_major = c.radius;
+    f.amplitude = c.halo;  // the quality's SNR: the halo over a quantisation floor
+    f.clipped = true;
+    f.window = c.box;
+    spots->push_back(s);
+    fits->push_back(f);
+  }
+}
+
 // ---------------------------------------------------------------------------
 // The pipeline.
 
@@ -343,6 +375,11 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const std::vector<char> drop = markDuplicates(kept);
   std::vector<SpotFit> fits;
   Spots spots = survivors(kept, drop, &fits);
+  if (p.clipped_cores)
+  {
+    core_finder_.find(planes_, p, spots, &cores_);
+    addClippedCores(cores_, &spots, &fits);
+  }
   tm.refine_ms = timer.lap();
 
   // Row-major order for readability; beams are the Triangulator's business.

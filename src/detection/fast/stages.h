@@ -163,6 +163,52 @@ private:
   std::vector<int> row_scores_;                // peaksOf's scores of three rows
 };
 
+// Stage 3c, colour frames without an ambient frame: dots whose core clips
+// the signal channel over several cells (a laser far brighter than the
+// exposure; its core white, every channel clipped), which the colour score
+// sees only as a ring. A core is an 8-connected component of clipped signal
+// cells (seeded on every third cell of every third row; a smaller core is
+// the Gaussian fit's); cores closer than the larger radius are one dot (a
+// core split by compression artefacts); one over 1/64 of the frame (a
+// clipped sky, a lamp-lit wall) is not a dot. A core is a dot when its halo,
+// the band 1 to 1 + d cells from it (d = max(2 cells, r / 4), r: the radius
+// of a disc of its area; the beam's edge and the lens's bloom), exceeds the
+// background (the median of the band 1 + 2 d to 1 + 4 d) in the signal by at
+// least min_peak and 5 standard errors of the two bands' means, with
+// the colour of the projector's light: the reference's excess at most
+// led_reference + max_red_excess of the signal's (the colour test's bound;
+// with max_red_excess 0, the colour score's reference term), the third's at
+// most the signal's. The third gets no tighter bound: cameras mix it into a
+// clipped laser's halo (cyan around green dots, magenta around red ones:
+// 0.15-0.68 of the signal on the photos of test/data/real).
+struct ClippedCore
+{
+  double x = 0, y = 0;    // pixels: the centroid of its clipped cells
+  double radius = 0;      // pixels: of a disc of its area
+  double excess[3] = {};  // halo over background per channel (r, g, b; DN)
+  double halo = 0;        // the signal's excess (DN)
+  int pixels = 0;
+  cv::Rect box;  // pixels
+};
+
+class ClippedCoreFinder
+{
+public:
+  // The cores of planes' frame whose halo passes and that no spot lies on
+  // (within max(2 px, r / 4) of the centroid: a Gaussian fit found that
+  // dot), into *cores.
+  void find(const FramePlanes& planes, const FastParams& p, const Spots& spots, std::vector<ClippedCore>* cores);
+
+private:
+  cv::Mat visited_;  // grid-sized, 0 between calls
+  std::vector<cv::Point> stack_, cells_, touched_;
+  std::vector<ClippedCore> found_, merged_;
+  cv::Mat mask_, inner_, near_, mid_, far_;  // the halo test's core and its dilations
+  std::vector<int> row_;                     // decoded grid row
+  std::vector<int> samples_[3];              // background samples per channel
+  bool clippedCell(const FramePlanes& planes, int gx, int gy) const;
+};
+
 // Result of the refinement of one candidate (stage 4).
 struct SpotFit
 {

@@ -132,6 +132,9 @@ public:
   int scale() const { return scale_; }
   int frameCols() const { return image_.cols; }
   int frameRows() const { return image_.rows; }
+  const cv::Mat& image() const { return image_; }
+  // Clipped at or above this (native units of the format's samples).
+  int saturation() const { return saturation_; }
   // Score units per DN (colour path 1, intensity path 16).
   int unit() const { return unit_; }
   // A blob's peak score must reach this (min_peak in score units; on a Bayer
@@ -222,8 +225,8 @@ private:
   bool local_ = false;
   cv::Mat local_scores_, local_background_, bin_threshold_, block_peak_, block_sigma_, coarse_threshold_;
   void buildLocalColour(const FastParams& p);
-  int local_row_ = -1;                             // rowRuns: the bin row of local_thr_, local_bg_
-  std::vector<int16_t> local_thr_, local_bg_;      // rowRuns: per cell of that bin row
+  int local_row_ = -1;                         // rowRuns: the bin row of local_thr_, local_bg_
+  std::vector<int16_t> local_thr_, local_bg_;  // rowRuns: per cell of that bin row
   int localScore(int gx, int gy) const
   {
     return local_scores_.at<int16_t>(gy, gx) - local_background_.at<int16_t>(gy / 4, gx / 4);

@@ -364,6 +364,77 @@ TEST(SpotDetector, DebugImageMarksSpots)
   }
 }
 
+// Laser dots far brighter than the exposure, as real photographs show them
+// (test/data/real: 70-220 px cores on phone photos): a white core where every
+// channel clips, tens of px wide, in a halo of the laser's colour into which
+// the camera bleeds the third channel (here blue at 0.45 of the green, as a
+// phone's cyan halo). Rendered here, independently of the detector: a
+// Gaussian beam of 60 x full scale, sigma 8 px (beyond max_sigma_px; the
+// green clips out to 23 px), on dark textured rock with shot noise. Beside
+// it, what is clipped but not a dot: a specular glint (white halo) and a
+// sunlit facet (halo of the rock's colour, red above green). The dot's
+// centre is the clipped core's centroid; with the stage off only Gaussian
+// fits on pieces of the ring stand for it, far off.
+TEST(SpotDetector, LaserDotsWithClippedWhiteCores)
+{
+  const cv::Point2d dot(201.37, 180.81), glint(450.2, 150.6), facet(420.5, 360.3);
+  const cv::Point2d small(120.3, 380.6);  // an ordinary unclipped dot (sigma 2 px)
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  cv::Mat image(480, 640, CV_8UC3);
+  for (int y = 0; y < image.rows; ++y)
+    for (int x = 0; x < image.cols; ++x)
+    {
+      const double texture = 1.0 + 0.15 * std::sin(0.21 * x + 0.05 * y) * std::cos(0.13 * y - 0.07 * x);
+      double rgb[3] = {60.0 * texture, 38.0 * texture, 34.0 * texture};
+      const auto beam = [&](const cv::Point2d& c, double sigma, double peak)
+      { return peak * std::exp(-(detail::square(x - c.x) + detail::square(y - c.y)) / (2 * sigma * sigma)); };
+      const double laser = beam(dot, 8.0, 60.0 * 255.0), plain = beam(small, 2.0, 120.0);
+      const double g = beam(glint, 5.0, 60.0 * 255.0), f = beam(facet, 5.0, 40.0 * 255.0);
+      const double add[3] = {0.08 * laser + 0.08 * plain + g + f, laser + plain + g + 0.7 * f,
+                             0.45 * laser + 0.22 * plain + g + 0.55 * f};
+      cv::Vec3b& px = image.at<cv::Vec3b>(y, x);
+      for (int c = 0; c < 3; ++c)
+      {
+        const double v = rgb[c] + add[c];
+        const double n = v + std::sqrt(std::max(v, 1.0) * 0.1) * noise(rng);  // shot noise, 0.1 DN per e-
+        px[2 - c] = cv::saturate_cast<uint8_t>(std::lround(n));
+      }
+    }
+  // The premise: a white core, clipped in every channel 14 px out.
+  ASSERT_EQ(image.at<cv::Vec3b>(181, 201), cv::Vec3b(255, 255, 255));
+  ASSERT_EQ(image.at<cv::Vec3b>(181, 201 + 14), cv::Vec3b(255, 255, 255));
+
+  SpotDetectorParams on, off;
+  off.fast.clipped_cores = false;
+  const auto near = [](const Spots& spots, const cv::Point2d& p, double r)
+  {
+    return std::count_if(spots.begin(), spots.end(),
+                         [&](const Spot& s) { return std::hypot(s.x - p.x, s.y - p.y) <= r; });
+  };
+  const SpotDetectionResult r = SpotDetector(on).detect(image, PixelFormat::kBgr8);
+  ASSERT_TRUE(r.ok) << r.error;
+
+  const auto on_dot = std::find_if(r.spots.begin(), r.spots.end(),
+                                   [&](const Spot& s) { return std::hypot(s.x - dot.x, s.y - dot.y) <= 30.0; });
+  ASSERT_NE(on_dot, r.spots.end());
+  const double error = std::hypot(on_dot->x - dot.x, on_dot->y - dot.y);
+  std::printf("[ MEASURE ] laser dot with a white core: %zu spots, core centroid %.3f px from the beam's centre\n",
+              r.spots.size(), error);
+  EXPECT_LE(error, 0.3);
+  const SpotDetectionResult r_off = SpotDetector(off).detect(image, PixelFormat::kBgr8);
+  EXPECT_EQ(near(r.spots, dot, 30.0), 1);    // no pieces of its halo
+  EXPECT_EQ(near(r.spots, small, 1.0), 1);   // the ordinary dot as before
+  EXPECT_EQ(near(r.spots, glint, 30.0), 0);  // a white halo: not the projector's light
+  // A halo of the rock's colour: the stage adds nothing. (The Gaussian path
+  // takes the facet for a clipped dot: where the red clips first, the ring's
+  // score g - 0.75 r is positive, and a clipped dot skips the colour test.)
+  EXPECT_EQ(near(r.spots, facet, 30.0), near(r_off.spots, facet, 30.0));
+  EXPECT_EQ(near(r_off.spots, dot, 3.0), 0);  // without the stage: pieces of the ring, far off
+  EXPECT_GE(near(r_off.spots, dot, 30.0), 1);
+  EXPECT_EQ(near(r_off.spots, small, 1.0), 1);
+}
+
 // The matched filter's noise (median and MAD of 65536 cells per frame) by
 // detail::medianOfMany: the same element as nth_element's median on noise
 // with dot-like outliers, ties, sorted and reversed runs, heavy tails, sizes
