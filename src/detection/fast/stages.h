@@ -200,13 +200,22 @@ public:
   void find(const FramePlanes& planes, const FastParams& p, const Spots& spots, std::vector<ClippedCore>* cores);
 
 private:
-  cv::Mat visited_;  // grid-sized, 0 between calls
+  void bind(const FramePlanes& planes);
+  bool clipped(int gx, int gy) const;  // the signal of grid cell (gx, gy)
+  void seedCores();                    // found_
+  void fillCore(int gx, int gy);       // the core through a seed, onto found_ when of a dot's size
+  void mergeCores();                   // found_ -> merged_
+  bool haloPasses(const FastParams& p, ClippedCore* c);
+
+  const FramePlanes* planes_ = nullptr;
+  int sat_ = 255, bytes_ = 3, offset_ = 1;  // the signal's level and place in 8-bit interleaved pixels
+  bool direct_ = false;                     // 8-bit interleaved: read in place
+  cv::Mat visited_;                         // grid-sized, 0 between calls
   std::vector<cv::Point> stack_, cells_, touched_;
   std::vector<ClippedCore> found_, merged_;
-  cv::Mat mask_, inner_, near_, mid_, far_;  // the halo test's core and its dilations
   std::vector<int> row_;                     // decoded grid row
   std::vector<int> samples_[3];              // background samples per channel
-  bool clippedCell(const FramePlanes& planes, int gx, int gy) const;
+  cv::Mat mask_, inner_, near_, mid_, far_;  // the halo test's core and its dilations
 };
 
 // Result of the refinement of one candidate (stage 4).
