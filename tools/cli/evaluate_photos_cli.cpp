@@ -260,20 +260,15 @@ std::vector<std::string> split(const std::string& s, char sep)
   return out;
 }
 
-}  // namespace
-
-namespace structured_light_stabilizer
+// The command line into *o; -1 to go on, else the exit status.
+int parseOptions(const std::vector<std::string>& args, Options* o, std::ostream& err)
 {
-
-int evaluatePhotosMain(const std::vector<std::string>& args, std::ostream& out, std::ostream& err)
-{
-  Options o;
   for (size_t i = 0; i < args.size(); ++i)
   {
     const std::string& k = args[i];
     if (k == "--list-spots" || k == "--why")
     {
-      (k == "--why" ? o.why : o.list_spots) = true;
+      (k == "--why" ? o->why : o->list_spots) = true;
       continue;
     }
     if (k == "-h" || k == "--help")
@@ -289,23 +284,23 @@ int evaluatePhotosMain(const std::vector<std::string>& args, std::ostream& out, 
     }
     const std::string& v = args[++i];
     if (k == "--photos")
-      o.photos = v;
+      o->photos = v;
     else if (k == "--labels")
-      o.labels = v;
+      o->labels = v;
     else if (k == "--half")
-      o.half = v;
+      o->half = v;
     else if (k == "--projector-color")
-      o.projector_color = v;
+      o->projector_color = v;
     else if (k == "--method")
-      o.method = v;
+      o->method = v;
     else if (k == "--param")
-      o.params.push_back(v);
+      o->params.push_back(v);
     else if (k == "--tolerance")
-      o.tolerance = std::atof(v.c_str());
+      o->tolerance = std::atof(v.c_str());
     else if (k == "--only")
-      o.only = split(v, ',');
+      o->only = split(v, ',');
     else if (k == "--overlay")
-      o.overlay = v;
+      o->overlay = v;
     else
     {
       say(err, "evaluate_photos: unknown option %s\n", k.c_str());
@@ -313,52 +308,229 @@ int evaluatePhotosMain(const std::vector<std::string>& args, std::ostream& out, 
       return 2;
     }
   }
-  if (o.photos.empty() || (o.half != "all" && o.half != "tuning" && o.half != "heldout"))
+  if (o->photos.empty() || (o->half != "all" && o->half != "tuning" && o->half != "heldout"))
   {
     usage(err);
     return 2;
   }
+  return -1;
+}
 
-  // The parameters common to every image; the projector colour follows each
-  // label unless --projector-color is given.
-  SpotDetectorParams base;
-  if (!o.method.empty() && !base.set("method", o.method))
+// The parameters common to every image; the projector colour follows each
+// label unless --projector-color is given. False (said why) on a bad value.
+bool baseParams(const Options& o, SpotDetectorParams* base, std::ostream& err)
+{
+  if (!o.method.empty() && !base->set("method", o.method))
   {
     say(err, "evaluate_photos: unknown method %s\n", o.method.c_str());
-    return 2;
+    return false;
   }
-  if (!o.projector_color.empty() && !base.set("projector_color", o.projector_color))
+  if (!o.projector_color.empty() && !base->set("projector_color", o.projector_color))
   {
     say(err, "evaluate_photos: unknown projector colour %s\n", o.projector_color.c_str());
-    return 2;
+    return false;
   }
   for (const std::string& p : o.params)
   {
     const size_t eq = p.find('=');
-    if (eq == std::string::npos || !base.set(p.substr(0, eq), p.substr(eq + 1)))
+    if (eq == std::string::npos || !base->set(p.substr(0, eq), p.substr(eq + 1)))
     {
       say(err, "evaluate_photos: --param %s: no SpotDetectorParams field takes it\n", p.c_str());
-      return 2;
+      return false;
     }
   }
+  return true;
+}
 
-  std::vector<std::string> files;
-  if (DIR* dir = opendir(o.labels.c_str()))
+// The label files of a folder, sorted; false (said why) when it cannot be read.
+bool labelFiles(const std::string& folder, std::vector<std::string>* files, std::ostream& err)
+{
+  DIR* dir = opendir(folder.c_str());
+  if (!dir)
   {
-    while (const dirent* e = readdir(dir))
+    say(err, "evaluate_photos: cannot open the label folder %s\n", folder.c_str());
+    return false;
+  }
+  while (const dirent* e = readdir(dir))
+  {
+    const std::string f = e->d_name;
+    if (f.size() > 5 && f.compare(f.size() - 5, 5, ".yaml") == 0)
+      files->push_back(f);
+  }
+  closedir(dir);
+  std::sort(files->begin(), files->end());
+  return true;
+}
+
+// --why: the detector's reasons for dropping candidates in the labelled part,
+// counted with their numbers left out ("sigma N px out of range"); "near a
+// dot": dropped within the tolerance of a label.
+void printWhy(const SpotDetectorDebug& debug, const Label& l, const std::vector<cv::Point2d>& dots, double tol,
+              std::ostream& out)
+{
+  auto kind = [](const std::string& s)
+  {
+    std::string k;
+    for (size_t i = 0; i < s.size();)
+      if (std::isdigit(static_cast<unsigned char>(s[i])) ||
+          (s[i] == '-' && i + 1 < s.size() && std::isdigit(static_cast<unsigned char>(s[i + 1]))))
+      {
+        while (i < s.size() &&
+               (std::isdigit(static_cast<unsigned char>(s[i])) || s[i] == '.' || s[i] == '-' || s[i] == 'e'))
+          ++i;
+        k += 'N';
+      }
+      else
+        k += s[i++];
+    return k;
+  };
+  std::vector<std::pair<std::string, std::pair<int, int>>> reasons;
+  for (const auto& rej : debug.rejected)
+  {
+    if (!counted(l, rej.x, rej.y))
+      continue;
+    const SpotDetectorDebug::Rejection r{rej.x, rej.y, kind(rej.reason)};
+    const bool near = std::any_of(dots.begin(), dots.end(),
+                                  [&](const cv::Point2d& d) { return std::hypot(d.x - r.x, d.y - r.y) <= tol; });
+    auto it = std::find_if(reasons.begin(), reasons.end(), [&](const auto& e) { return e.first == r.reason; });
+    if (it == reasons.end())
+      it = reasons.insert(reasons.end(), {r.reason, {0, 0}});
+    ++it->second.first;
+    it->second.second += near;
+  }
+  std::sort(reasons.begin(), reasons.end(),
+            [](const auto& a, const auto& b) { return a.second.first > b.second.first; });
+  say(out, "  candidates %d (coarse %d), fitted %d; dropped in the labelled part:%s\n", debug.candidates,
+      debug.coarse_candidates, debug.fitted, reasons.empty() ? " none" : "");
+  for (const auto& e : reasons)
+    say(out, "    %5d (%d near a dot) %s\n", e.second.first, e.second.second, e.first.c_str());
+}
+
+// The pooled counts over the photos evaluated.
+struct Tally
+{
+  int images = 0, failed = 0, precision_images = 0;
+  long labels = 0, spots = 0, matched = 0;
+  double sum_recall = 0, sum_precision = 0;
+};
+
+// One label file: its photo detected, matched and printed, added to *t.
+void evaluateOne(const Options& o, const SpotDetectorParams& base, const std::string& f, Tally* t, std::ostream& out,
+                 std::ostream& err)
+{
+  const std::string name = f.substr(0, f.size() - 5);
+  if (!o.only.empty() && std::find(o.only.begin(), o.only.end(), name) == o.only.end())
+    return;
+  Label l;
+  try
+  {
+    l = readLabel(o.labels + "/" + f, name);
+  }
+  catch (const std::exception& e)
+  {
+    say(err, "evaluate_photos: %s: %s\n", f.c_str(), e.what());
+    ++t->failed;
+    return;
+  }
+  if (o.half != "all" && l.half != o.half)
+    return;
+  PixelFormat format;
+  std::string why;
+  const cv::Mat image = loadAs(o.photos + "/" + l.image, l.encoding, &format, &why);
+  if (image.empty())
+  {
+    say(err, "evaluate_photos: %s: %s\n", name.c_str(), why.c_str());
+    ++t->failed;
+    return;
+  }
+  SpotDetectorParams p = base;
+  if (o.projector_color.empty() && !p.set("projector_color", l.projector_color))
+  {
+    say(err, "evaluate_photos: %s: unknown projector_color %s\n", name.c_str(), l.projector_color.c_str());
+    ++t->failed;
+    return;
+  }
+  if (l.projector_dots > 0)
+  {
+    // The pattern as its user configures it: a square of at least that many beams.
+    const int side = static_cast<int>(std::ceil(std::sqrt(static_cast<double>(l.projector_dots))));
+    p.projector_rows = side;
+    p.projector_cols = side;
+  }
+  SpotDetector detector(p);
+  const auto t0 = std::chrono::steady_clock::now();
+  SpotDetectorDebug debug;
+  const SpotDetectionResult result = detector.detect(image, format, o.why ? &debug : nullptr);
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  // A refused frame is a detector failure on a real photo: it counts, with
+  // no spots.
+  if (!result.ok)
+    say(out, "%-30s refused by the detector: %s\n", name.c_str(), result.error.c_str());
+  // Only what lies in the labelled part of the photo counts.
+  Spots spots;
+  for (const Spot& s : result.ok ? result.spots : Spots())
+    if (counted(l, s.x, s.y))
+      spots.push_back(s);
+  std::vector<cv::Point2d> dots;
+  for (const auto& d : l.dots)
+    if (counted(l, d.x, d.y))
+      dots.push_back(d);
+  const double tol = l.tolerance_px > 0 ? l.tolerance_px : o.tolerance;
+  const std::vector<int> match = matchSpots(spots, dots, tol);
+  int matched = 0;
+  double sq = 0;
+  for (size_t i = 0; i < spots.size(); ++i)
+    if (match[i] >= 0)
     {
-      const std::string f = e->d_name;
-      if (f.size() > 5 && f.compare(f.size() - 5, 5, ".yaml") == 0)
-        files.push_back(f);
+      ++matched;
+      const cv::Point2d e = cv::Point2d(spots[i].x, spots[i].y) - dots[match[i]];
+      sq += e.dot(e);
     }
-    closedir(dir);
-  }
-  else
+  const double recall = dots.empty() ? 1.0 : static_cast<double>(matched) / dots.size();
+  const double precision = spots.empty() ? 1.0 : static_cast<double>(matched) / spots.size();
+  char off[32] = "-", prec[32] = "-";
+  if (!spots.empty())
+    std::snprintf(prec, sizeof prec, "%.3f", precision);
+  if (matched > 0)
+    std::snprintf(off, sizeof off, "%.2f", std::sqrt(sq / matched));
+  say(out, "%-30s %-7s %-6s %-6s %5zu %5zu %5d %7.3f %7s %6s %8.1f%s\n", name.c_str(), l.half.c_str(),
+      l.encoding.c_str(), projectorColorName(p.projector_color), dots.size(), spots.size(), matched, recall, prec, off,
+      ms, tol != o.tolerance ? " (tolerance_px)" : "");
+  if (o.list_spots)
+    for (size_t i = 0; i < spots.size(); ++i)
+      say(out, "  spot %8.2f %8.2f area %7.1f %s\n", spots[i].x, spots[i].y, spots[i].area,
+          match[i] >= 0 ? "matched" : "unmatched");
+  if (o.why)
+    printWhy(debug, l, dots, tol, out);
+  ++t->images;
+  t->labels += static_cast<long>(dots.size());
+  t->spots += static_cast<long>(spots.size());
+  t->matched += matched;
+  t->sum_recall += recall;
+  if (!spots.empty())
   {
-    say(err, "evaluate_photos: cannot open the label folder %s\n", o.labels.c_str());
-    return 2;
+    t->sum_precision += precision;
+    ++t->precision_images;
   }
-  std::sort(files.begin(), files.end());
+  if (!o.overlay.empty())
+    drawOverlay(o.overlay + "/" + name + ".png", image, format, l, spots, match, err);
+}
+
+}  // namespace
+
+namespace structured_light_stabilizer
+{
+
+int evaluatePhotosMain(const std::vector<std::string>& args, std::ostream& out, std::ostream& err)
+{
+  Options o;
+  const int parsed = parseOptions(args, &o, err);
+  if (parsed >= 0)
+    return parsed;
+  SpotDetectorParams base;
+  std::vector<std::string> files;
+  if (!baseParams(o, &base, err) || !labelFiles(o.labels, &files, err))
+    return 2;
   if (!o.overlay.empty())
     mkdir(o.overlay.c_str(), 0755);
 
@@ -373,158 +545,18 @@ int evaluatePhotosMain(const std::vector<std::string>& args, std::ostream& out, 
   }
   say(out, "%-30s %-7s %-6s %-6s %5s %5s %5s %7s %7s %6s %8s\n", "image", "half", "enc", "color", "label", "spots",
       "match", "recall", "precis", "rms_px", "ms");
-
-  int images = 0, failed = 0;
-  long n_labels = 0, n_spots = 0, n_match = 0;
-  double sum_recall = 0, sum_precision = 0;
-  int precision_images = 0;
+  Tally t;
   for (const std::string& f : files)
-  {
-    const std::string name = f.substr(0, f.size() - 5);
-    if (!o.only.empty() && std::find(o.only.begin(), o.only.end(), name) == o.only.end())
-      continue;
-    Label l;
-    try
-    {
-      l = readLabel(o.labels + "/" + f, name);
-    }
-    catch (const std::exception& e)
-    {
-      say(err, "evaluate_photos: %s: %s\n", f.c_str(), e.what());
-      ++failed;
-      continue;
-    }
-    if (o.half != "all" && l.half != o.half)
-      continue;
-    PixelFormat format;
-    std::string why;
-    const cv::Mat image = loadAs(o.photos + "/" + l.image, l.encoding, &format, &why);
-    if (image.empty())
-    {
-      say(err, "evaluate_photos: %s: %s\n", name.c_str(), why.c_str());
-      ++failed;
-      continue;
-    }
-    SpotDetectorParams p = base;
-    if (o.projector_color.empty() && !p.set("projector_color", l.projector_color))
-    {
-      say(err, "evaluate_photos: %s: unknown projector_color %s\n", name.c_str(), l.projector_color.c_str());
-      ++failed;
-      continue;
-    }
-    if (l.projector_dots > 0)
-    {
-      // The pattern as its user configures it: a square of at least that many beams.
-      const int side = static_cast<int>(std::ceil(std::sqrt(static_cast<double>(l.projector_dots))));
-      p.projector_rows = side;
-      p.projector_cols = side;
-    }
-    SpotDetector detector(p);
-    const auto t0 = std::chrono::steady_clock::now();
-    SpotDetectorDebug debug;
-    const SpotDetectionResult result = detector.detect(image, format, o.why ? &debug : nullptr);
-    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    // A refused frame is a detector failure on a real photo: it counts, with
-    // no spots.
-    if (!result.ok)
-      say(out, "%-30s refused by the detector: %s\n", name.c_str(), result.error.c_str());
-    // Only what lies in the labelled part of the photo counts.
-    Spots spots;
-    for (const Spot& s : result.ok ? result.spots : Spots())
-      if (counted(l, s.x, s.y))
-        spots.push_back(s);
-    std::vector<cv::Point2d> dots;
-    for (const auto& d : l.dots)
-      if (counted(l, d.x, d.y))
-        dots.push_back(d);
-    const double tol = l.tolerance_px > 0 ? l.tolerance_px : o.tolerance;
-    const std::vector<int> match = matchSpots(spots, dots, tol);
-    int matched = 0;
-    double sq = 0;
-    for (size_t i = 0; i < spots.size(); ++i)
-      if (match[i] >= 0)
-      {
-        ++matched;
-        const cv::Point2d e = cv::Point2d(spots[i].x, spots[i].y) - dots[match[i]];
-        sq += e.dot(e);
-      }
-    const double recall = dots.empty() ? 1.0 : static_cast<double>(matched) / dots.size();
-    const double precision = spots.empty() ? 1.0 : static_cast<double>(matched) / spots.size();
-    char off[32] = "-", prec[32] = "-";
-    if (!spots.empty())
-      std::snprintf(prec, sizeof prec, "%.3f", precision);
-    if (matched > 0)
-      std::snprintf(off, sizeof off, "%.2f", std::sqrt(sq / matched));
-    say(out, "%-30s %-7s %-6s %-6s %5zu %5zu %5d %7.3f %7s %6s %8.1f%s\n", name.c_str(), l.half.c_str(),
-        l.encoding.c_str(), projectorColorName(p.projector_color), dots.size(), spots.size(), matched, recall, prec,
-        off, ms, tol != o.tolerance ? " (tolerance_px)" : "");
-    if (o.list_spots)
-      for (size_t i = 0; i < spots.size(); ++i)
-        say(out, "  spot %8.2f %8.2f area %7.1f %s\n", spots[i].x, spots[i].y, spots[i].area,
-            match[i] >= 0 ? "matched" : "unmatched");
-    if (o.why)
-    {
-      // Reasons counted with their numbers left out ("sigma N px out of
-      // range"); "near a dot": dropped within the tolerance of a label.
-      auto kind = [](const std::string& s)
-      {
-        std::string k;
-        for (size_t i = 0; i < s.size();)
-          if (std::isdigit(static_cast<unsigned char>(s[i])) ||
-              (s[i] == '-' && i + 1 < s.size() && std::isdigit(static_cast<unsigned char>(s[i + 1]))))
-          {
-            while (i < s.size() &&
-                   (std::isdigit(static_cast<unsigned char>(s[i])) || s[i] == '.' || s[i] == '-' || s[i] == 'e'))
-              ++i;
-            k += 'N';
-          }
-          else
-            k += s[i++];
-        return k;
-      };
-      std::vector<std::pair<std::string, std::pair<int, int>>> reasons;
-      for (const auto& rej : debug.rejected)
-      {
-        if (!counted(l, rej.x, rej.y))
-          continue;
-        const SpotDetectorDebug::Rejection r{rej.x, rej.y, kind(rej.reason)};
-        const bool near = std::any_of(dots.begin(), dots.end(),
-                                      [&](const cv::Point2d& d) { return std::hypot(d.x - r.x, d.y - r.y) <= tol; });
-        auto it = std::find_if(reasons.begin(), reasons.end(), [&](const auto& e) { return e.first == r.reason; });
-        if (it == reasons.end())
-          it = reasons.insert(reasons.end(), {r.reason, {0, 0}});
-        ++it->second.first;
-        it->second.second += near;
-      }
-      std::sort(reasons.begin(), reasons.end(),
-                [](const auto& a, const auto& b) { return a.second.first > b.second.first; });
-      say(out, "  candidates %d (coarse %d), fitted %d; dropped in the labelled part:%s\n", debug.candidates,
-          debug.coarse_candidates, debug.fitted, reasons.empty() ? " none" : "");
-      for (const auto& e : reasons)
-        say(out, "    %5d (%d near a dot) %s\n", e.second.first, e.second.second, e.first.c_str());
-    }
-    ++images;
-    n_labels += static_cast<long>(dots.size());
-    n_spots += static_cast<long>(spots.size());
-    n_match += matched;
-    sum_recall += recall;
-    if (!spots.empty())
-    {
-      sum_precision += precision;
-      ++precision_images;
-    }
-    if (!o.overlay.empty())
-      drawOverlay(o.overlay + "/" + name + ".png", image, format, l, spots, match, err);
-  }
+    evaluateOne(o, base, f, &t, out, err);
   say(out,
       "pooled: %d images, %ld labels, %ld spots, %ld matched: recall %.3f precision %.3f; "
       "per-image mean recall %.3f, mean precision %.3f (%d images with spots)\n",
-      images, n_labels, n_spots, n_match, n_labels ? static_cast<double>(n_match) / n_labels : 0.0,
-      n_spots ? static_cast<double>(n_match) / n_spots : 0.0, images ? sum_recall / images : 0.0,
-      precision_images ? sum_precision / precision_images : 0.0, precision_images);
-  if (failed)
-    say(out, "evaluate_photos: %d label file(s) not evaluated (see above)\n", failed);
-  return failed ? 1 : 0;
+      t.images, t.labels, t.spots, t.matched, t.labels ? static_cast<double>(t.matched) / t.labels : 0.0,
+      t.spots ? static_cast<double>(t.matched) / t.spots : 0.0, t.images ? t.sum_recall / t.images : 0.0,
+      t.precision_images ? t.sum_precision / t.precision_images : 0.0, t.precision_images);
+  if (t.failed)
+    say(out, "evaluate_photos: %d label file(s) not evaluated (see above)\n", t.failed);
+  return t.failed ? 1 : 0;
 }
 
 }  // namespace structured_light_stabilizer
