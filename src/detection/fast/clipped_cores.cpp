@@ -112,8 +112,10 @@ void ClippedCoreFinder::seedCores()
 {
   const FramePlanes& planes = *planes_;
   const int cols = planes.cols(), rows = planes.rows(), k = planes.scale();
-  if (visited_.rows != rows || visited_.cols != cols)
-    visited_ = cv::Mat::zeros(rows, cols, CV_8U);
+  // Kept at the largest frame seen (the tracked regions differ in size
+  // every frame); all zero between calls.
+  if (visited_.rows < rows || visited_.cols < cols)
+    visited_ = cv::Mat::zeros(std::max(rows, visited_.rows), std::max(cols, visited_.cols), CV_8U);
   const cv::Mat& image = planes.image();
   row_.resize(static_cast<size_t>(3 * cols));
   found_.clear();

@@ -210,7 +210,7 @@ private:
   const FramePlanes* planes_ = nullptr;
   int sat_ = 255, bytes_ = 3, offset_ = 1;  // the signal's level and place in 8-bit interleaved pixels
   bool direct_ = false;                     // 8-bit interleaved: read in place
-  cv::Mat visited_;                         // grid-sized, 0 between calls
+  cv::Mat visited_;                         // at least the grid's size, 0 between calls
   std::vector<cv::Point> stack_, cells_, touched_;
   std::vector<ClippedCore> found_, merged_;
   std::vector<int> row_;                     // decoded grid row
