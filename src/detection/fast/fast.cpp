@@ -52,7 +52,11 @@ public:
     ++noise_age_;
   }
   void endRegions() override { in_regions_ = false; }
-  void resetStatistics() override { frame_noise_ = MatchedNoise(); }
+  void resetStatistics() override
+  {
+    frame_noise_ = MatchedNoise();
+    local_fallback_ = false;
+  }
 
 private:
   void findCandidates(const FastParams& p, SpotDetectorDebug* debug);
@@ -77,7 +81,13 @@ private:
   cv::Mat ambient8_;  // an unrounded ambient estimate, rounded for the threshold pass
   int noise_age_ = 0;
   bool in_regions_ = false;
+  bool local_fallback_ = false;  // the last whole frame was scored against the local colour
 };
+
+// More of a whole frame's cells above the fixed greenness than a pattern of
+// dots covers (at most 13 % in the tests' densest frames): the surface's own
+// colour scores above the threshold.
+constexpr double kFixedScoreCoverage = 0.25;
 
 // Region frames after which the statistics of the last whole frame are
 // renewed by a whole-frame search (the sun and exposure change slowly; a
@@ -330,6 +340,15 @@ void addClippedCores(const std::vector<ClippedCore>& cores, Spots* spots, std::v
 // ---------------------------------------------------------------------------
 // The pipeline.
 
+// The fraction of the grid's cells in the runs.
+double coveredFraction(const std::vector<Run>& runs, int cols, int rows)
+{
+  size_t cells = 0;
+  for (const Run& r : runs)
+    cells += static_cast<size_t>(r.x1 - r.x0 + 1);
+  return cols > 0 && rows > 0 ? static_cast<double>(cells) / (static_cast<double>(cols) * rows) : 0.0;
+}
+
 // The most candidates a frame of dots can have (FastParams::max_candidates).
 size_t candidateBudget(const SpotDetectorParams& params)
 {
@@ -347,7 +366,14 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const bool unrounded = !ambient.empty() && ambient.depth() == CV_32F;
   if (unrounded)
     ambient.convertTo(ambient8_, CV_8U);  // rounded and saturated (NaN -> 0)
-  planes_.bind(image, unrounded ? ambient8_ : ambient, format, params.projector_color, p,
+  // The fixed greenness assumes that the surface scores below
+  // detect_threshold (reddish rock). Where more than kFixedScoreCoverage of
+  // a whole frame scores above it (grey or green rock by day, a tinted
+  // light), that frame and the regions tracked after it are scored against
+  // the local colour instead (FastParams::local_colour).
+  FastParams fp = p;
+  fp.local_colour = p.local_colour || (in_regions_ && local_fallback_);
+  planes_.bind(image, unrounded ? ambient8_ : ambient, format, params.projector_color, fp,
                in_regions_ ? &frame_noise_ : nullptr, unrounded ? ambient : cv::Mat());
   if (!in_regions_ && planes_.matchedPath())
   {
@@ -355,29 +381,46 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
     noise_size_ = image.size();
     noise_age_ = 0;
   }
-  findCandidates(p, debug);
+  findCandidates(fp, debug);
+  std::string note;
+  if (!in_regions_)
+  {
+    const bool fixed = planes_.colourPath() && !planes_.localPath() && !planes_.hasAmbient();
+    const double covered = fixed ? coveredFraction(threshold_pass_.runs(), planes_.cols(), planes_.rows()) : 0.0;
+    local_fallback_ = covered > kFixedScoreCoverage;
+    if (local_fallback_)
+    {
+      fp.local_colour = true;
+      planes_.bind(image, cv::Mat(), format, params.projector_color, fp);
+      findCandidates(fp, debug);
+      char text[128];
+      std::snprintf(text, sizeof text,
+                    "%.0f %% of the frame above the fixed greenness: scored against the local colour", 100.0 * covered);
+      note = text;
+    }
+  }
   tm.threshold_ms = threshold_ms_;
   tm.labelling_ms = timer.lap() - threshold_ms_;
   // More candidates than the pattern can hold (texture of the projector's
   // colour, noise, a flash): the most significant are refined, the frame is
   // never refused for them.
   const size_t budget = candidateBudget(params);
-  std::string note;
   if (candidates_.size() > budget)
   {
-    note = "kept the " + std::to_string(budget) + " most significant of " + std::to_string(candidates_.size()) +
-           " candidate spots (fast.max_candidates, or 10 x the projector's beams)";
+    note += std::string(note.empty() ? "" : "; ") + "kept the " + std::to_string(budget) + " most significant of " +
+            std::to_string(candidates_.size()) +
+            " candidate spots (fast.max_candidates, or 10 x the projector's beams)";
     std::stable_sort(candidates_.begin(), candidates_.end(),
                      [](const Candidate& a, const Candidate& b) { return a.significance > b.significance; });
     candidates_.resize(budget);
   }
-  const std::vector<KeptSpot> kept = refineCandidates(p, debug, 2 * budget);
+  const std::vector<KeptSpot> kept = refineCandidates(fp, debug, 2 * budget);
   const std::vector<char> drop = markDuplicates(kept);
   std::vector<SpotFit> fits;
   Spots spots = survivors(kept, drop, &fits);
   if (p.clipped_cores)
   {
-    core_finder_.find(planes_, p, spots, &cores_);
+    core_finder_.find(planes_, fp, spots, &cores_);
     addClippedCores(cores_, &spots, &fits);
   }
   tm.refine_ms = timer.lap();

@@ -535,13 +535,13 @@ TEST(SpotDetectorInputs, BadInputIsRefusedWithAReason)
 }
 
 // A frame of noise is never refused. With the local scores (a noise model
-// and a significance test) it gives no dots, whatever its encoding; with the
-// fixed greenness (the default) noise passes the thresholds and the
-// detector keeps at most its candidate budget, the most significant, and
-// says so (368-593 spots measured: the Triangulator assigns few of them). A
-// frame with more significant candidates than the pattern can hold (dots
-// among a thousand and more bright specks of the projector's colour) keeps
-// the most significant, says so, and finds every dot.
+// and a significance test) it gives no dots, whatever its encoding. The
+// fixed greenness (the default) finds a third of it above its threshold, more
+// than a pattern of dots covers: the frame is scored against its local
+// colour, and says so (before, 368-593 spots: the candidate budget). A frame
+// with more significant candidates than the pattern can hold (dots among a
+// thousand and more bright specks of the projector's colour) keeps the most
+// significant, says so, and finds every dot.
 TEST(SpotDetectorInputs, NoiseFramesAndTheCandidateBudget)
 {
   SpotDetectorParams local;
@@ -561,6 +561,7 @@ TEST(SpotDetectorInputs, NoiseFramesAndTheCandidateBudget)
     const SpotDetectionResult f = det_fixed.detect(noise, k.first);
     EXPECT_TRUE(f.ok) << encodingName(k.first) << ": " << f.error;
     EXPECT_LE(f.spots.size(), 1000u) << encodingName(k.first);  // the budget: 10 x the 100 beams
+    EXPECT_NE(f.note.find("scored against the local colour"), std::string::npos) << f.note;
     std::cout << "[ MEASURE ] noise frame, " << encodingName(k.first) << ": " << r.spots.size()
               << " spots with the local scores, " << f.spots.size() << " with the fixed greenness"
               << (f.note.empty() ? "" : " (" + f.note + ")") << "\n";
@@ -580,7 +581,8 @@ TEST(SpotDetectorInputs, NoiseFramesAndTheCandidateBudget)
   int added = 0;
   for (int tries = 0; added < 1500 && tries < 100000; ++tries)
   {
-    const double cy = rng.uniform(8.0, crowded.rows - 8.0), cx = rng.uniform(8.0, crowded.cols - 8.0);  // sequenced draws (docs/testing.md)
+    const double cy = rng.uniform(8.0, crowded.rows - 8.0),
+                 cx = rng.uniform(8.0, crowded.cols - 8.0);  // sequenced draws (docs/testing.md)
     const cv::Point2d c(cx, cy);
     bool near = false;
     for (const cv::Point2d& d : f.dots)

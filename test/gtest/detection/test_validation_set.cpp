@@ -39,11 +39,12 @@ RunOptions options()
 
 struct Bounds
 {
-  double min_recall;      // per frame
-  int max_wrong;          // wrong beams per frame
-  double max_light_rms;   // px, per frame, to the light's own centroid
-  double max_hit_rms;     // px, per frame, to the hit point's pixel
-  double min_valid;       // share of the poses valid, pooled (0: not asserted)
+  double min_recall;        // per frame
+  int max_wrong;            // wrong beams per frame
+  double max_light_rms;     // px, per frame, to the light's own centroid
+  double max_hit_rms;       // px, per frame, to the hit point's pixel
+  double min_valid;         // share of the poses valid, pooled (0: not asserted)
+  int max_false = 1 << 30;  // false spots per frame (not on a dot, occluded or not)
 };
 
 // Runs every held-out rock case of one lighting, strobe setting and dot
@@ -68,6 +69,7 @@ Tally heldOutRock(const std::string& lighting, bool strobe, double min_dot_to_su
       EXPECT_EQ(t.refused, 0) << where << ": " << t.line();
       EXPECT_GE(t.recall(), b.min_recall) << where << ": " << t.line();
       EXPECT_LE(t.wrong, b.max_wrong) << where << ": " << t.line();
+      EXPECT_LE(t.false_spots, b.max_false) << where << ": " << t.line();
       EXPECT_LE(t.lightRms(), b.max_light_rms) << where << ": " << t.line();
       EXPECT_LE(t.hitRms(), b.max_hit_rms) << where << ": " << t.line();
     }
@@ -135,11 +137,14 @@ TEST(ValidationSet, HeldOutRockAtDusk)
 }
 
 // By day in single frames, the dots at least 0.5 x the sunlit rock: the
-// frame is not refused and no beam is wrong, but recall is 0.23-0.51 per
-// frame (the fixed greenness misses the dots on the sunlit facets).
+// frame is not refused and no beam is wrong, but recall is 0.26-0.51 per
+// frame (the dots on the sunlit facets are missed). The grey rock scores
+// above the fixed greenness over 30 % of each frame, which is therefore
+// scored against the rock's local colour: 1 false spot in 6 frames (5 per
+// frame with the fixed greenness).
 TEST(ValidationSet, HeldOutRockByDaySingleFrame)
 {
-  heldOutRock("day", false, 0.5, {0.2, 0, 0.55, 0.55, 0.0});
+  heldOutRock("day", false, 0.5, {0.2, 0, 0.55, 0.55, 0.0, 2});
 }
 
 // By day, strobed (projector-off frames around each, motion-compensated):
