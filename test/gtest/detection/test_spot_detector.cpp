@@ -435,6 +435,42 @@ TEST(SpotDetector, LaserDotsWithClippedWhiteCores)
   EXPECT_EQ(near(r_off.spots, small, 1.0), 1);
 }
 
+// A frame under green-tinted light (a white balance that doubles the green,
+// dots and rock alike): the reddish rock, now G/R 1.1, scores above the fixed
+// greenness over most of the frame,
+// so the whole frame is scored against the rock's local colour and says so.
+// The regions searched after it (windows around each dot, as the tracking
+// planner asks) are scored the same way and find the same dots.
+TEST(SpotDetector, TintedFrameScoredAgainstTheLocalColourAlsoInRegions)
+{
+  synthetic_dots::Config cfg;
+  cfg.width = cfg.height = 512;
+  cfg.rows = cfg.cols = 8;
+  cfg.pitch_px = 55.0;
+  cfg.seed = 4242;
+  const synthetic_dots::Frame f = synthetic_dots::render(cfg);
+  cv::Mat tinted;
+  cv::multiply(f.image, cv::Scalar(1, 2, 1), tinted);
+  SpotDetector det;
+  const SpotDetectionResult whole = det.detect(tinted, PixelFormat::kBgr8);
+  ASSERT_TRUE(whole.ok) << whole.error;
+  EXPECT_NE(whole.note.find("scored against the local colour"), std::string::npos) << whole.note;
+  const Score sw = score(whole.spots, f.dots);
+  print("green-tinted frame, whole", sw);
+  EXPECT_EQ(sw.matched, sw.truth);
+  EXPECT_LE(sw.false_spots, 1);
+  EXPECT_LE(sw.rms(), 0.10);
+  std::vector<cv::Rect> regions;
+  for (const auto& d : f.dots)
+    regions.emplace_back(cvRound(d.x) - 14, cvRound(d.y) - 14, 29, 29);
+  const SpotDetectionResult part = det.detectIn(tinted, cv::Mat(), PixelFormat::kBgr8, regions);
+  ASSERT_TRUE(part.ok) << part.error;
+  const Score sp = score(part.spots, f.dots);
+  print("green-tinted frame, in windows", sp);
+  EXPECT_EQ(sp.matched, sw.matched);
+  EXPECT_LE(std::abs(sp.rms() - sw.rms()), 0.02);
+}
+
 // The matched filter's noise (median and MAD of 65536 cells per frame) by
 // detail::medianOfMany: the same element as nth_element's median on noise
 // with dot-like outliers, ties, sorted and reversed runs, heavy tails, sizes
