@@ -7,12 +7,15 @@
 // spot_detector.cpp), which also gives the method its ~method name.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <memory>
 #include <string>
 
 #include <opencv2/core.hpp>
 
+#include "structured_light_stabilizer/common/math.h"
 #include "structured_light_stabilizer/detection/spot_detector.h"
 
 namespace structured_light_stabilizer
@@ -48,6 +51,26 @@ public:
   // New parameters: statistics kept from earlier frames no longer apply.
   virtual void resetStatistics() {}
 };
+
+// How far a spot's refinement reached from its centroid (px): 3 sigma of its
+// fit and a pixel (the fast method), or its region's radius (the baseline).
+inline double reachOf(const Spot& s, const SpotQuality* q)
+{
+  if (q && q->sigma_px > 0)
+    return 3.0 * q->sigma_px + 1.0;
+  return std::sqrt(std::max(1.0f, s.area) / detail::kPi) + 1.0;
+}
+
+// Whether a spot found in `region` had its window cut by an edge of the
+// region that is not the frame's (SpotDetector::detectIn leaves it out).
+inline bool cutByRegion(const Spot& s, double reach, const cv::Rect& region, const cv::Size& frame)
+{
+  const bool left = region.x > 0 && s.x - reach < region.x;
+  const bool top = region.y > 0 && s.y - reach < region.y;
+  const bool right = region.x + region.width < frame.width && s.x + reach > region.x + region.width - 1;
+  const bool bottom = region.y + region.height < frame.height && s.y + reach > region.y + region.height - 1;
+  return left || top || right || bottom;
+}
 
 std::unique_ptr<SpotDetectionMethod> makeBaselineMethod();  // spot_detector_baseline.cpp
 std::unique_ptr<SpotDetectionMethod> makeFastMethod();      // spot_detector_fast.cpp

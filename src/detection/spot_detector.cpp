@@ -258,26 +258,6 @@ SpotDetectionResult SpotDetector::detect(const cv::Mat& image, const cv::Mat& am
 
 namespace
 {
-// How far a spot's refinement reached from its centroid (px): 3 sigma of its
-// fit and a pixel (the fast method), or its region's radius (the baseline).
-double reachOf(const Spot& s, const SpotQuality* q)
-{
-  if (q && q->sigma_px > 0)
-    return 3.0 * q->sigma_px + 1.0;
-  return std::sqrt(std::max(1.0f, s.area) / detail::kPi) + 1.0;
-}
-
-// Whether a spot found in `region` had its window cut by an edge of the
-// region that is not the frame's.
-bool cutByRegion(const Spot& s, double reach, const cv::Rect& region, const cv::Size& frame)
-{
-  const bool left = region.x > 0 && s.x - reach < region.x;
-  const bool top = region.y > 0 && s.y - reach < region.y;
-  const bool right = region.x + region.width < frame.width && s.x + reach > region.x + region.width - 1;
-  const bool bottom = region.y + region.height < frame.height && s.y + reach > region.y + region.height - 1;
-  return left || top || right || bottom;
-}
-
 void addTimings(const SpotDetectorTimings& t, SpotDetectorTimings* sum)
 {
   sum->blur_ms += t.blur_ms;
@@ -302,6 +282,7 @@ void addDebug(const SpotDetectorDebug& d, const cv::Point& at, SpotDetectorDebug
   sum->candidates += d.candidates;
   sum->coarse_candidates += d.coarse_candidates;
   sum->fitted += d.fitted;
+  sum->seeded += d.seeded;
 }
 }  // namespace
 

@@ -209,6 +209,7 @@ struct SpotDetectorDebug
   int candidates = 0;             // blobs/regions considered before rejection
   int coarse_candidates = 0;      // fast: extra candidates from the 4 x 4 binned pass
   int fitted = 0;                 // fast: spots located by the Gaussian fit without their clipped pixels
+  int seeded = 0;                 // fast, detectIn: dots refined from the last frame's (tracked_seeds), unsearched
   // Fast: candidates dropped, where and why (drawn in the debug image).
   struct Rejection
   {

@@ -31,6 +31,15 @@ struct KeptSpot
   int pixels;  // candidate pixels behind it
 };
 
+// A dot of the last frame (full-frame pixels): where to refine it from in
+// this one (FastParams::tracked_seeds).
+struct LastDot
+{
+  double x = 0, y = 0, sigma = 0;
+  int area = 0;
+  bool core = false;  // a clipped core of stage 3c, not a fit
+};
+
 void reject(SpotDetectorDebug* debug, double x, double y, const std::string& why)
 {
   if (debug)
@@ -50,17 +59,24 @@ public:
   {
     in_regions_ = true;
     ++noise_age_;
+    last_dots_.swap(these_dots_);
+    these_dots_.clear();
   }
   void endRegions() override { in_regions_ = false; }
   void resetStatistics() override
   {
     frame_noise_ = MatchedNoise();
     local_fallback_ = false;
+    last_dots_.clear();
+    these_dots_.clear();
   }
 
 private:
   void findCandidates(const FastParams& p, SpotDetectorDebug* debug);
-  std::vector<KeptSpot> refineCandidates(const FastParams& p, SpotDetectorDebug* debug, size_t max_candidates);
+  std::vector<KeptSpot> refineCandidates(const FastParams& p, SpotDetectorDebug* debug, size_t max_candidates,
+                                         bool split = true);
+  bool seedCandidates();
+  void rememberDots(const Spots& spots, const std::vector<SpotFit>& fits, const FastParams& p);
 
   // Scratch reused across frames (no per-frame allocation in the hot path).
   FramePlanes planes_;
@@ -82,6 +98,11 @@ private:
   int noise_age_ = 0;
   bool in_regions_ = false;
   bool local_fallback_ = false;  // the last whole frame was scored against the local colour
+  // The dots of the last frame and of this one (tracked_seeds), and where
+  // this call's image lies in its frame.
+  std::vector<LastDot> last_dots_, these_dots_;
+  cv::Point offset_, frame_origin_;  // in the image's buffer (cv::Mat::locateROI)
+  cv::Size frame_size_;              // of the last whole frame
 };
 
 // More of a whole frame's cells above the fixed greenness than a pattern of
@@ -332,6 +353,7 @@ void addClippedCores(const std::vector<ClippedCore>& cores, Spots* spots, std::v
     f.amplitude = c.halo;  // the quality's SNR: the halo over a quantisation floor
     f.clipped = true;
     f.window = c.box;
+    f.core = true;
     spots->push_back(s);
     fits->push_back(f);
   }
@@ -364,6 +386,16 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   StageTimer timer;
   SpotDetectorTimings tm;
   const bool unrounded = !ambient.empty() && ambient.depth() == CV_32F;
+  cv::Size buffer;
+  cv::Point at;
+  image.locateROI(buffer, at);
+  if (!in_regions_)
+  {
+    these_dots_.clear();
+    frame_size_ = image.size();
+    frame_origin_ = at;
+  }
+  offset_ = at - frame_origin_;
   if (unrounded)
     ambient.convertTo(ambient8_, CV_8U);  // rounded and saturated (NaN -> 0)
   // The fixed greenness assumes that the surface scores below
@@ -381,7 +413,15 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
     noise_size_ = image.size();
     noise_age_ = 0;
   }
-  findCandidates(fp, debug);
+  // Regions around the last frame's dots on the fixed colour path: those
+  // dots refined straight from where they were (FastParams::tracked_seeds).
+  const bool seeded = in_regions_ && fp.tracked_seeds && planes_.colourPath() && !planes_.localPath() &&
+                      !planes_.matchedPath() && seedCandidates();
+  const size_t seeds = seeded ? candidates_.size() : 0;
+  if (!seeded)
+    findCandidates(fp, debug);
+  else
+    threshold_ms_ = 0;
   std::string note;
   if (!in_regions_)
   {
@@ -414,7 +454,18 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
                      [](const Candidate& a, const Candidate& b) { return a.significance > b.significance; });
     candidates_.resize(budget);
   }
-  const std::vector<KeptSpot> kept = refineCandidates(fp, debug, 2 * budget);
+  std::vector<KeptSpot> kept = refineCandidates(fp, debug, 2 * budget, !seeded);
+  if (seeded && kept.size() < seeds)
+  {
+    // A dot lost or changed (occluded, moved beyond its window, refused):
+    // the region is searched as usual, and what it finds stands.
+    if (debug)
+      debug->rejected.clear();
+    findCandidates(fp, debug);
+    kept = refineCandidates(fp, debug, 2 * budget);
+  }
+  else if (seeded && debug)
+    debug->seeded = static_cast<int>(seeds);
   const std::vector<char> drop = markDuplicates(kept);
   std::vector<SpotFit> fits;
   Spots spots = survivors(kept, drop, &fits);
@@ -423,6 +474,7 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
     core_finder_.find(planes_, fp, spots, &cores_);
     addClippedCores(cores_, &spots, &fits);
   }
+  rememberDots(spots, fits, fp);
   tm.refine_ms = timer.lap();
 
   // Row-major order for readability; beams are the Triangulator's business.
@@ -467,9 +519,9 @@ void FastMethod::findCandidates(const FastParams& p, SpotDetectorDebug* debug)
 
 // Stage 4 and the acceptance tests, candidate by candidate; blobs holding
 // several dots append their further seeds to candidates_ on the way.
-std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug, size_t max_candidates)
+std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDetectorDebug* debug, size_t max_candidates,
+                                                   bool split)
 {
-  const bool split = true;
   if (split)
     splitter_.reset(planes_, threshold_pass_.runs(), labeller_.runBlob(), labeller_.blobs());
   std::vector<KeptSpot> kept;
@@ -515,6 +567,76 @@ std::vector<KeptSpot> FastMethod::refineCandidates(const FastParams& p, SpotDete
     kept.push_back({r, c.count});
   }
   return kept;
+}
+
+// This call's dots, for the next frame's regions; not those cut by the
+// region's edge, which SpotDetector::detectIn leaves out (the region next to
+// it sees them whole).
+void FastMethod::rememberDots(const Spots& spots, const std::vector<SpotFit>& fits, const FastParams& p)
+{
+  if (!p.tracked_seeds || !planes_.colourPath())
+    return;
+  const cv::Rect region(offset_, cv::Size(planes_.frameCols(), planes_.frameRows()));
+  for (size_t i = 0; i < fits.size() && i < spots.size(); ++i)
+  {
+    const SpotFit& f = fits[i];
+    SpotQuality q;
+    q.sigma_px = static_cast<float>(f.sigma);
+    Spot s = spots[i];
+    s.x += offset_.x;
+    s.y += offset_.y;
+    if (in_regions_ && cutByRegion(s, reachOf(s, &q), region, frame_size_))
+      continue;
+    LastDot d;
+    d.x = f.x + offset_.x;
+    d.y = f.y + offset_.y;
+    d.sigma = f.sigma;
+    d.area = static_cast<int>(spots[i].area);
+    d.core = f.core;
+    these_dots_.push_back(d);
+  }
+}
+
+// A region of windows around the last frame's dots (narrower than the frame:
+// not the planner's band): candidates_ become those dots, to be refined
+// straight from where they were, without the region's threshold pass. False
+// (search the region) when it holds none of them, a clipped core of stage 3c,
+// or a dot too near one of its inner edges for a whole window.
+bool FastMethod::seedCandidates()
+{
+  candidates_.clear();
+  if (planes_.frameCols() >= frame_size_.width)
+    return false;
+  const int cols = planes_.frameCols(), rows = planes_.frameRows();
+  for (const LastDot& d : last_dots_)
+  {
+    const double x = d.x - offset_.x, y = d.y - offset_.y;
+    if (x < 0 || y < 0 || x > cols - 1 || y > rows - 1)
+      continue;
+    // A clipped dot's window reaches 3 sigma + 3 px, and its planes 2 px more
+    // (at the frame's own edges the window is cut as in a search).
+    const double reach = 3.0 * d.sigma + 6.0;
+    const bool left = offset_.x > 0 && reach > x;
+    const bool top = offset_.y > 0 && reach > y;
+    const bool right = offset_.x + cols < frame_size_.width && x > cols - 1 - reach;
+    const bool bottom = offset_.y + rows < frame_size_.height && y > rows - 1 - reach;
+    if (d.core || left || top || right || bottom)
+      return false;
+    // The same dot found in two overlapping regions of the last frame: once.
+    if (std::any_of(candidates_.begin(), candidates_.end(),
+                    [&](const Candidate& c) { return std::abs(c.x - x) < 1.0 && std::abs(c.y - y) < 1.0; }))
+      continue;
+    Candidate c{x,
+                y,
+                d.sigma,
+                std::max(1, d.area),
+                static_cast<int>(std::floor(x - reach)),
+                static_cast<int>(std::floor(y - reach)),
+                static_cast<int>(std::ceil(x + reach)),
+                static_cast<int>(std::ceil(y + reach))};
+    candidates_.push_back(c);
+  }
+  return !candidates_.empty();
 }
 }  // namespace
 

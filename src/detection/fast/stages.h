@@ -234,6 +234,7 @@ struct SpotFit
   bool on_pedestal = false;  // found by the small-window retry
   bool clipped = false;      // clipped pixels in the dot: located by the Gaussian fit without them
   bool normalised = false;   // the added light was divided by the albedo under each pixel
+  bool core = false;         // a clipped core found by stage 3c (ClippedCoreFinder), not fitted
   cv::Rect window;
 };
 

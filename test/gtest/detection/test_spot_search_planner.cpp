@@ -159,8 +159,11 @@ TEST(SpotSearchRegions, ParametersOutOfRangeAreReplacedWithAWarning)
   EXPECT_EQ(planner.params().full_search_every, 0);
 }
 
-// A dot cut by a region's inner edge is left out; inside a region it comes
-// out where the full search puts it.
+// A dot cut by a region's inner edge is left out; inside a region searched
+// afresh it comes out where the full search puts it, and refined from where
+// the last frame had it (FastParams::tracked_seeds) within 0.02 px of that
+// (measured 0.011 px: the background's ring is the border of the first
+// window filled, which depends on where the refinement starts).
 TEST(SpotSearchRegions, DotCutByARegionEdgeIsLeftOut)
 {
   const SimFrame f = Simulator(sequenceScene(3100)).render(0.0);
@@ -170,13 +173,22 @@ TEST(SpotSearchRegions, DotCutByARegionEdgeIsLeftOut)
   ASSERT_GT(full.spots.size(), 50u);
   const Spot& s = full.spots[full.spots.size() / 2];
   const int x = static_cast<int>(s.x), y = static_cast<int>(s.y);
-  // Whole: the same centroid.
-  SpotDetectionResult in = det.detectIn(f.image, cv::Mat(), PixelFormat::kBgr8, {cv::Rect(x - 20, y - 20, 40, 40)});
+  const auto nearest = [&](const Spots& spots)
+  {
+    double d = 1e9;
+    for (const Spot& t : spots)
+      d = std::min(d, std::hypot(t.x - s.x, t.y - s.y));
+    return d;
+  };
+  // Whole, in a region of a detector with no last frame: searched, the same centroid.
+  SpotDetector fresh;
+  SpotDetectionResult in = fresh.detectIn(f.image, cv::Mat(), PixelFormat::kBgr8, {cv::Rect(x - 20, y - 20, 40, 40)});
   ASSERT_TRUE(in.ok);
-  bool same = false;
-  for (const Spot& t : in.spots)
-    same = same || (std::abs(t.x - s.x) < 1e-6 && std::abs(t.y - s.y) < 1e-6);
-  EXPECT_TRUE(same) << "dot at " << s.x << ", " << s.y << " not found at the same place in its window";
+  EXPECT_LT(nearest(in.spots), 1e-6) << "dot at " << s.x << ", " << s.y << " not found at the same place in its window";
+  // The same region after the full search: the dot refined from its last position.
+  in = det.detectIn(f.image, cv::Mat(), PixelFormat::kBgr8, {cv::Rect(x - 20, y - 20, 40, 40)});
+  ASSERT_TRUE(in.ok);
+  EXPECT_LT(nearest(in.spots), 0.02) << "dot at " << s.x << ", " << s.y << " moved when refined from there";
   // The region ends one pixel right of the centroid: cut.
   in = det.detectIn(f.image, cv::Mat(), PixelFormat::kBgr8, {cv::Rect(x - 30, y - 20, 32, 40)});
   ASSERT_TRUE(in.ok);
@@ -184,7 +196,7 @@ TEST(SpotSearchRegions, DotCutByARegionEdgeIsLeftOut)
     EXPECT_GT(std::hypot(t.x - s.x, t.y - s.y), 2.0) << "a cut dot was reported";
 }
 
-// The same dots, the same centroid error as a full search on every frame,
+// The same dots, a centroid error no worse than a full search's on every frame,
 // with a fraction of the pixels searched: bgr8 by day; mono8 with a NIR
 // projector by day with its projector-off frame (strobed), found by intensity
 // over block-wise local backgrounds; bgr8 strobed with dim dots (0.3 x the
@@ -211,7 +223,7 @@ TEST(SpotSearchPlanner, TrackedDetectionMatchesFullSearchAgainstTruth)
     SpotSearchPlanner planner;
     Score pooled_full, pooled_tracked;
     double tracked_pixels = 0;
-    int tracked_frames = 0;
+    int tracked_frames = 0, seeded = 0, tracked_spots = 0;
     for (int i = 0; i < 40; ++i)
     {
       const SimFrame f = sim.render(i / 30.0);
@@ -224,30 +236,43 @@ TEST(SpotSearchPlanner, TrackedDetectionMatchesFullSearchAgainstTruth)
       if (!tracked.hasRegionStatistics(!ambient.empty(), format, f.image.size(), &why))
         planner.requestFullSearch(why);
       const std::vector<cv::Rect> regions = planner.plan(f.image.size());
-      const SpotDetectionResult b = tracked.detectIn(f.image, ambient, format, regions);
+      SpotDetectorDebug debug;
+      const SpotDetectionResult b = tracked.detectIn(f.image, ambient, format, regions, &debug);
       planner.update(b);
       ASSERT_TRUE(a.ok && b.ok);
       const Score sa = test::score(a.spots, truth, 2.0), sb = test::score(b.spots, truth, 2.0);
       // Per frame: every dot the full search finds, and no more false spots.
       EXPECT_GE(sb.matched, sa.matched) << "seed " << seed << " frame " << i;
       EXPECT_LE(sb.false_spots, sa.false_spots + 1) << "seed " << seed << " frame " << i;
-      EXPECT_LE(std::abs(sb.rms() - sa.rms()), 0.01) << "seed " << seed << " frame " << i;
+      // No worse centroids (refined from the last frame's dots, tracking can
+      // do better: it starts from a window centred on the dot).
+      EXPECT_LE(sb.rms(), sa.rms() + 0.01) << "seed " << seed << " frame " << i;
       pooled_full.add(sa);
       pooled_tracked.add(sb);
       if (!regions.empty())
       {
         tracked_pixels += pixelsOf(regions) / f.image.total();
         ++tracked_frames;
+        seeded += debug.seeded;
+        tracked_spots += static_cast<int>(b.spots.size());
       }
     }
     std::printf(
         "[ MEASURE ] %s seed %d: full search recall %.4f RMS %.4f px; tracked recall %.4f RMS %.4f px; %ld full "
-        "searches in 40 frames; %.1f %% of the pixels searched when tracking\n",
+        "searches in 40 frames; %.1f %% of the pixels searched when tracking, %.1f %% of the tracked dots seeded\n",
         mono      ? "mono8 NIR strobed"
         : strobed ? "bgr8 strobed"
                   : "bgr8",
         seed, pooled_full.recall(), pooled_full.rms(), pooled_tracked.recall(), pooled_tracked.rms(),
-        planner.fullSearches(), 100.0 * tracked_pixels / std::max(1, tracked_frames));
+        planner.fullSearches(), 100.0 * tracked_pixels / std::max(1, tracked_frames),
+        100.0 * seeded / std::max(1, tracked_spots));
+    // Colour frames without an ambient frame refine most tracked dots from
+    // their last positions (the others lie in the swept band, or in a
+    // region that needed a search); the rest search every region.
+    if (!strobed)
+      EXPECT_GT(seeded, tracked_spots / 2) << "seed " << seed;
+    else
+      EXPECT_EQ(seeded, 0) << "seed " << seed;
     // bgr8 strobed: the start and the noise statistics renewed after 30 frames.
     EXPECT_EQ(planner.fullSearches(), seed == 3400 ? 2 : 1) << "seed " << seed << ": " << planner.lastFullReason();
     EXPECT_LE(pooled_tracked.rms(), pooled_full.rms() + 0.003);
