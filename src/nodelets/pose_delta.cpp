@@ -147,11 +147,15 @@ private:
 
   // ---- Inputs: points while wanted; the images too when the texture part is on.
 
+  // The images first: a cloud that came before images_subscribed_ was set
+  // went on alone, and a lock on it had no texture for as long as it held
+  // (the first cloud can come while the image subscription is still being
+  // made: a slow master, a loaded machine).
   void subscribe() override
   {
+    syncImageSubscription(true);
     sub_points_ = getNodeHandle().subscribe("points", 5, &PoseDeltaNodelet::cloudCb, this);
     points_subscribed_ = true;
-    syncImageSubscription(true);
   }
 
   void unsubscribe() override
@@ -295,7 +299,9 @@ private:
   void imageCb(const sensor_msgs::ImageConstPtr& image)
   {
     std::lock_guard<std::mutex> lock(buffer_mutex_);
+    const int lone = loneClouds();
     matcher_.addImage(image, handle_frame_);
+    reportLone(lone);
   }
 
   void cloudCb(const sensor_msgs::PointCloud2ConstPtr& cloud)
@@ -306,7 +312,26 @@ private:
       std::lock_guard<std::mutex> c(params_mutex_);
       texture = use_texture_;
     }
+    const int lone = loneClouds();
     matcher_.addCloud(cloud, texture && images_subscribed_, handle_frame_);
+    reportLone(lone);
+  }
+
+  // Clouds that went on without their image while images were wanted (under
+  // buffer_mutex_). Reported once images have flowed: before the image
+  // subscription connects, the first clouds go on alone by design.
+  int loneClouds() const { return matcher_.lone().later_images + matcher_.lone().queue_full; }
+
+  void reportLone(int before)
+  {
+    if (loneClouds() == before || matcher_.lone().matched == 0)
+      return;
+    const CloudImageMatcher::Lone& l = matcher_.lone();
+    NODELET_WARN_THROTTLE(10.0,
+                          "PoseDelta: the cloud at %.3f goes on without its image (newest image %.3f); %d so far: "
+                          "%d whose image was lost (images of later stamps came), %d for a full queue "
+                          "(~image_queue_size %d)",
+                          l.last_stamp, l.newest_image, loneClouds(), l.later_images, l.queue_full, image_queue_size_);
   }
 
   void ambientCb(const sensor_msgs::ImageConstPtr& ambient)
@@ -574,6 +599,7 @@ private:
     stat.add("frames", frames_);
     stat.add("valid frames", valid_frames_);
     stat.add("reference locked", estimator_.hasReference());
+    stat.add("clouds without their image", loneClouds());
   }
 
   // Parameters fixed at start-up.

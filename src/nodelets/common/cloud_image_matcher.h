@@ -12,6 +12,10 @@
 // emitted sorted by stamp, so `emit` sees the clouds in stamp order (what
 // frame_to_frame tracking needs).
 //
+// Each cloud that goes on alone while images are wanted is counted with its
+// cause (`lone()`): images of later stamps had come (its own was lost
+// upstream or in a subscriber queue), or the queue overflowed first.
+//
 // Not thread-safe: the nodelet calls it under its buffer mutex; `emit` runs
 // inside addImage()/addCloud().
 #pragma once
@@ -48,8 +52,19 @@ public:
     reset();
   }
 
+  // Clouds that went on without their image, by cause, since the start.
+  struct Lone
+  {
+    int later_images = 0;                         // an image of a later stamp had come: its own was lost
+    int queue_full = 0;                           // the queue of unmatched stamps overflowed first
+    int matched = 0;                              // clouds that went on with their image
+    double last_stamp = 0.0, newest_image = 0.0;  // the last such cloud's stamp, the newest image's then
+  };
+  const Lone& lone() const { return lone_; }
+
   void addImage(const ImagePtr& image, const Emit& emit)
   {
+    newest_image_ = std::max(newest_image_, image->header.stamp);
     sync_->add<1>(image);
     flush(emit);
   }
@@ -77,6 +92,7 @@ private:
   void reset()
   {
     ready_.clear();
+    newest_image_ = ros::Time();
     sync_.reset(new message_filters::Synchronizer<Policy>(Policy(queue_size_)));
     sync_->registerCallback(&CloudImageMatcher::collect, this);
     sync_->getPolicy()->registerDropCallback(&CloudImageMatcher::collect, this);
@@ -86,8 +102,17 @@ private:
   // of no use.
   void collect(const CloudPtr& cloud, const ImagePtr& image)
   {
-    if (cloud)
-      ready_.emplace_back(cloud, image);
+    if (!cloud)
+      return;
+    ready_.emplace_back(cloud, image);
+    if (image)
+    {
+      ++lone_.matched;
+      return;
+    }
+    ++(newest_image_ > cloud->header.stamp ? lone_.later_images : lone_.queue_full);
+    lone_.last_stamp = cloud->header.stamp.toSec();
+    lone_.newest_image = newest_image_.toSec();
   }
 
   void flush(const Emit& emit)
@@ -104,6 +129,8 @@ private:
   int queue_size_ = 5;
   std::unique_ptr<message_filters::Synchronizer<Policy>> sync_;
   std::vector<Pair> ready_;
+  ros::Time newest_image_;
+  Lone lone_;
 };
 
 }  // namespace structured_light_stabilizer
