@@ -455,7 +455,8 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
     candidates_.resize(budget);
   }
   std::vector<KeptSpot> kept = refineCandidates(fp, debug, 2 * budget, !seeded);
-  if (seeded && kept.size() < seeds)
+  const bool all_seeded = seeded && kept.size() >= seeds;
+  if (seeded && !all_seeded)
   {
     // A dot lost or changed (occluded, moved beyond its window, refused):
     // the region is searched as usual, and what it finds stands.
@@ -469,7 +470,9 @@ SpotDetectionResult FastMethod::detect(const cv::Mat& image, const cv::Mat& ambi
   const std::vector<char> drop = markDuplicates(kept);
   std::vector<SpotFit> fits;
   Spots spots = survivors(kept, drop, &fits);
-  if (p.clipped_cores)
+  // A region whose last dots were all refined again holds no new white core
+  // (one that appears there is the band's to find, as a new dot is).
+  if (p.clipped_cores && !all_seeded)
   {
     core_finder_.find(planes_, fp, spots, &cores_);
     addClippedCores(cores_, &spots, &fits);
