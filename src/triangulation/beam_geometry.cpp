@@ -106,7 +106,8 @@ bool BeamGeometry::predictPixel(int beam, const std::vector<Eigen::Vector3d>& su
     Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
     for (const auto& p : support)
       cov += (p - centroid) * (p - centroid).transpose();
-    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+    es.computeDirect(cov);
     // Collinear supports (smallest two eigenvalues tiny) give no plane.
     if (es.eigenvalues()(1) > 1e-2 * es.eigenvalues()(2))
       normal = es.eigenvectors().col(0);
