@@ -225,8 +225,8 @@ void pyrDownToFloat(const cv::Mat& image, int channel, const cv::Rect& roi, std:
 }  // namespace
 
 // The refinement's float levels first_level .. `levels` - 1 of the ROI
-// (those below first_level left empty) and, at half resolution (level 1 in
-// 8 bits), the base of the Lucas-Kanade pyramid: with the refinement to
+// (those below first_level left empty) and, into `half` when given, at half
+// resolution (level 1 in 8 bits), the base of the Lucas-Kanade pyramid: with the refinement to
 // follow, pyramidal tracking only has to land within a pixel, at a quarter
 // of the cost.
 bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_level, int levels,
@@ -258,7 +258,8 @@ bool TextureTracker::buildLevels(const cv::Mat& image, int channel, int first_le
   }
   for (size_t l = 2; l < float_levels->size(); ++l)
     cv::pyrDown((*float_levels)[l - 1], (*float_levels)[l]);
-  (*float_levels)[1].convertTo(*half, CV_8U);
+  if (half)
+    (*float_levels)[1].convertTo(*half, CV_8U);
   return true;
 }
 
@@ -451,7 +452,7 @@ bool TextureTracker::setFrame(const cv::Mat& image, int channel)
   // The refinement's sums vectorise on floats; frame_ is the Lucas-Kanade
   // base (half resolution with the refinement).
   if (config_.photometric_refinement)
-    frame_ok_ = buildLevels(image, channel, first_level_, used_levels_, &frame_levels_, &frame_);
+    frame_ok_ = buildLevels(image, channel, first_level_, used_levels_, &frame_levels_, nullptr);
   else
   {
     frame_ = prepare(image, channel, roi_);
@@ -501,6 +502,11 @@ int TextureTracker::trackPyramidal(const std::vector<cv::Point2f>& predicted, co
   const int levels = half ? std::max(config_.pyramid_levels - 1, 0) : config_.pyramid_levels;
   if (!frame_pyramid_ready_)
   {
+    // The 8-bit base from the refinement's half level, made only when a
+    // pyramidal track needs it (most frames are refined from the motion
+    // filter's prediction: no pyramid).
+    if (half)
+      frame_levels_[1].convertTo(frame_, CV_8U);
     cv::buildOpticalFlowPyramid(frame_, frame_pyramid_, win, levels, false);
     frame_pyramid_ready_ = true;
   }
