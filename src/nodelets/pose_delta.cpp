@@ -409,10 +409,10 @@ private:
     // stays locked (tx, ty, rz unobservable on smooth rock). The first cloud
     // often comes without one: its image went out before this nodelet's
     // image subscription connected, or before the first camera_info. The
-    // lock waits for a frame that has both, for up to kLockWaitFrames frames
-    // (then it locks on the geometry alone, as before).
+    // lock waits for a frame that has both (lockMayWait), then locks on the
+    // geometry alone.
     if (estimator_.lockPending() && estimator_.params().use_texture && images_subscribed_ &&
-        (!image || !latest_info_) && lock_waits_ < kLockWaitFrames)
+        (!image || !latest_info_) && lockMayWait(input.stamp_s))
     {
       ++lock_waits_;
       fillInvalid(msg.get(), std::string("reference lock waits for a frame with its ") +
@@ -440,6 +440,20 @@ private:
     else if (pub_pose_cov_.getNumSubscribers() > 0)
       publishPose(*msg, r);
     publish(msg, start, r.valid && estimator_.hasReference());
+  }
+
+  // The pending lock may pass over this frame for want of its image: for
+  // kLockWaitFrames frames or kLockWaitSeconds of stamps, whichever is longer
+  // (at 30 Hz and more, a subscription slow to connect on a loaded machine
+  // takes more than ten frames), at most kLockWaitMaxFrames.
+  bool lockMayWait(double stamp_s)
+  {
+    if (lock_waits_ == 0)
+      lock_wait_since_s_ = stamp_s;
+    if (lock_waits_ < kLockWaitFrames)
+      return true;
+    const double waited = stamp_s - lock_wait_since_s_;
+    return lock_waits_ < kLockWaitMaxFrames && waited >= 0.0 && waited < kLockWaitSeconds;
   }
 
   // pose_delta/pose: the same estimate as a standard pose of the current
@@ -643,7 +657,10 @@ private:
   std::deque<FramePair> before_first_info_;  // frames with an image, before any camera_info
   bool info_wait_over_ = false;              // camera_info silent for ~image_queue_size frames
   static constexpr int kLockWaitFrames = 10;
-  int lock_waits_ = 0;  // frames the pending lock has passed over for want of an image
+  static constexpr double kLockWaitSeconds = 2.0;
+  static constexpr int kLockWaitMaxFrames = 500;
+  int lock_waits_ = 0;            // frames the pending lock has passed over for want of an image
+  double lock_wait_since_s_ = 0;  // the first such frame's stamp
   AmbientPairing ambient_pairing_;
   const AmbientPairing::Release release_strobed_ =
       [this](const sensor_msgs::PointCloud2ConstPtr& cloud, const sensor_msgs::ImageConstPtr& image,

@@ -5,7 +5,9 @@ service refuses while no map has arrived, and the node keeps working. With
 the texture on, images that cannot be read (truncated data, an odd step for
 16 bits, an encoding cv_bridge does not know, a truncated frame of an
 encoding to convert) are refused with an ERROR that
-says why, and each cloud still gets its pose_delta from the geometry."""
+says why, and each cloud still gets its pose_delta from the geometry. With
+the texture on and no image ever, the lock waits 2 s of stamps for one, then
+takes the geometry alone."""
 import math
 import os
 import sys
@@ -183,6 +185,42 @@ class PoseDeltaBadInput(unittest.TestCase):
             print("%s: pose_delta %s, errors %s" % (name, "received" if got else "missing", said))
             self.assertIsNotNone(got, "%s: no pose_delta for its cloud" % name)
             self.assertTrue(any(fragment in e for e in said), "%s: no ERROR naming '%s': %s" % (name, fragment, said))
+
+    def test_the_lock_waits_two_seconds_of_stamps_for_an_image(self):
+        # Clouds 50 ms apart (stamps), no image ever: the first 40 (10 frames or
+        # 2 s, whichever is longer) wait for one; then the lock takes the
+        # geometry alone. The last ~image_queue_size (5) clouds stay queued
+        # for their images.
+        poses, lock = [], threading.Lock()
+
+        def on_pose(msg):
+            with lock:
+                poses.append(msg)
+
+        rospy.Subscriber("waiting/pose_delta", PoseDelta, on_pose, queue_size=100)
+        pub_cloud = rospy.Publisher("waiting/points", PointCloud2, queue_size=100)
+        deadline = time.time() + 20.0
+        while time.time() < deadline and not pub_cloud.get_num_connections():
+            time.sleep(0.1)
+        time.sleep(0.5)  # the pose_delta subscription
+        good, t0 = rock_points(), rospy.Time.now()
+        for k in range(60):
+            pub_cloud.publish(cloud(good, 10, 10, stamp=t0 + rospy.Duration(0.05 * k)))
+            time.sleep(0.03)
+        deadline = time.time() + 10.0
+        while time.time() < deadline:
+            with lock:
+                if len(poses) >= 55:
+                    break
+            time.sleep(0.05)
+        with lock:
+            got = sorted(poses, key=lambda m: m.header.stamp)
+        waiting = [m for m in got if "lock waits for a frame with its image" in m.status]
+        print("the lock waited %d of %d frames" % (len(waiting), len(got)))
+        self.assertGreaterEqual(len(got), 50)
+        self.assertEqual(len(waiting), 40, [m.status for m in got[38:42]])
+        self.assertEqual(got[39].header.stamp, t0 + rospy.Duration(0.05 * 39))
+        self.assertTrue(all("lock waits" not in m.status for m in got[40:]), [m.status for m in got[40:43]])
 
 
 if __name__ == "__main__":
