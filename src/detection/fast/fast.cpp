@@ -611,6 +611,7 @@ bool FastMethod::seedCandidates()
   if (planes_.frameCols() >= frame_size_.width)
     return false;
   const int cols = planes_.frameCols(), rows = planes_.frameRows();
+  const cv::Rect region(offset_, cv::Size(cols, rows));
   for (const LastDot& d : last_dots_)
   {
     const double x = d.x - offset_.x, y = d.y - offset_.y;
@@ -619,11 +620,10 @@ bool FastMethod::seedCandidates()
     // A clipped dot's window reaches 3 sigma + 3 px, and its planes 2 px more
     // (at the frame's own edges the window is cut as in a search).
     const double reach = 3.0 * d.sigma + 6.0;
-    const bool left = offset_.x > 0 && reach > x;
-    const bool top = offset_.y > 0 && reach > y;
-    const bool right = offset_.x + cols < frame_size_.width && x > cols - 1 - reach;
-    const bool bottom = offset_.y + rows < frame_size_.height && y > rows - 1 - reach;
-    if (d.core || left || top || right || bottom)
+    Spot at;
+    at.x = d.x;
+    at.y = d.y;
+    if (d.core || cutByRegion(at, reach, region, frame_size_))
       return false;
     // The same dot found in two overlapping regions of the last frame: once.
     if (std::any_of(candidates_.begin(), candidates_.end(),
